@@ -1,0 +1,167 @@
+"""Quadruped locomotion at a commanded forward speed, on flat ground or a slope.
+
+Built on dm_control's quadruped model. Differences from ``suite.quadruped.walk``: the
+robot starts upright facing +x (dm_control draws a uniformly random orientation), the
+command is drawn per episode from a small set of speeds (like the SimDist reference's
+three speeds), the floor can be inclined, rangefinders give an onboard height scan, and
+the task reports forward progress along the direction of travel in metres.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import mujoco
+import numpy as np
+from dm_control.suite import base, common
+from dm_control.suite import quadruped as dmc_quadruped
+from lxml import etree
+
+from simdist.envs.layout import Layout
+
+CONTROL_TIMESTEP = 0.02  # 50 Hz, the reference control rate
+_TOE_FORCE_SENSORS = ("force_toe_front_left", "force_toe_front_right",
+                      "force_toe_back_right", "force_toe_back_left")
+# Gaussian tolerance: reward 0.1 at one margin (= commanded speed) outside the band.
+_GAUSS_SCALE = np.sqrt(-2.0 * np.log(0.1))
+
+
+def make_model(slope_deg: float, floor_size: float = 60.0, texture_size: int = 64) -> tuple:
+    """Returns ``(xml, assets)`` for the quadruped on a (possibly inclined) floor.
+
+    Textures are shrunk to ``texture_size`` so per-step texture randomisation uploads
+    kilobytes, not the 11 MB of dm_control's 800 px skybox.
+    """
+    xml = dmc_quadruped.make_model(floor_size=floor_size, rangefinders=True)
+    mjcf = etree.XML(xml, etree.XMLParser(remove_blank_text=True))
+    floor = mjcf.find(".//geom[@name='floor']")
+    # Rotating about -y tilts +x uphill: the robot climbs when it walks forward.
+    half = -np.deg2rad(slope_deg) / 2
+    floor.attrib["quat"] = f"{np.cos(half)} 0 {np.sin(half)} 0"
+    return etree.tostring(mjcf), small_texture_assets(common.ASSETS, texture_size)
+
+
+def small_texture_assets(assets: dict, size: int) -> dict:
+    """dm_control's common assets with skybox and floor textures resized to ``size``."""
+    out = dict(assets)
+    for key, old in (("./common/skybox.xml", 'width="800" height="800"'),
+                     ("./common/materials.xml", 'width="300" height="300"')):
+        text = out[key].decode() if isinstance(out[key], bytes) else out[key]
+        if old not in text:
+            raise RuntimeError(f"unexpected dm_control asset {key}: texture size changed")
+        out[key] = text.replace(old, f'width="{size}" height="{size}"').encode()
+    return out
+
+
+class QuadrupedLocomotion(base.Task):
+    """Walk forward (uphill on a slope) at a commanded speed, staying upright.
+
+    Reward: ``upright * speed_tracking`` with ``upright = (1 + n_body . n_ground) / 2``
+    and a Gaussian tolerance of the forward velocity around the command (1 inside
+    +-10% of the command, 0.1 one command-width outside).
+
+    Args:
+        speeds: commanded forward speeds (m/s), one drawn per episode.
+        slope_deg: floor incline; forward is up the slope.
+        random: seed or ``numpy.random.RandomState``.
+    """
+
+    def __init__(self, speeds=(0.25, 0.5, 0.75), slope_deg: float = 0.0, random=None):
+        if not speeds or min(speeds) <= 0:
+            raise ValueError(f"speeds must be a non-empty list of positive m/s, got {speeds}")
+        self.speeds = tuple(float(s) for s in speeds)
+        self.slope_deg = float(slope_deg)
+        theta = np.deg2rad(slope_deg)
+        self.forward = np.array([np.cos(theta), 0.0, np.sin(theta)])
+        self.ground_normal = np.array([-np.sin(theta), 0.0, np.cos(theta)])
+        self.command = self.speeds[0]
+        self._start = np.zeros(3)
+        self._idx = None
+        super().__init__(random=random)
+
+    # -- indices into MjData, computed once per model -------------------------------
+    def _indices(self, physics):
+        m = physics.model.ptr
+        hinges = np.flatnonzero(m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE)
+
+        def sensor(name):
+            i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)
+            return np.arange(m.sensor_adr[i], m.sensor_adr[i] + m.sensor_dim[i])
+
+        rf = np.flatnonzero(m.sensor_type == mujoco.mjtSensor.mjSENS_RANGEFINDER)
+        return dict(
+            torso=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "torso"),
+            qpos=m.jnt_qposadr[hinges], qvel=m.jnt_dofadr[hinges],
+            gyro=sensor("imu_gyro"), accel=sensor("imu_accel"), vel=sensor("velocimeter"),
+            toe_force=np.concatenate([sensor(s) for s in _TOE_FORCE_SENSORS]),
+            rangefinder=m.sensor_adr[rf],
+        )
+
+    def initialize_episode(self, physics):
+        if self._idx is None:
+            self._idx = self._indices(physics)
+        self.command = self.speeds[self.random.randint(len(self.speeds))]
+        yaw = self.random.uniform(-0.1, 0.1)
+        # Stand on the incline: pitch the body with the slope, then a small yaw.
+        pitch = np.zeros(4)
+        mujoco.mju_axisAngle2Quat(pitch, np.array([0.0, 1.0, 0.0]), -np.deg2rad(self.slope_deg))
+        turn = np.zeros(4)
+        mujoco.mju_axisAngle2Quat(turn, self.ground_normal, yaw)
+        orientation = np.zeros(4)
+        mujoco.mju_mulQuat(orientation, turn, pitch)
+        physics.data.qpos[self._idx["qpos"]] = self.random.uniform(-0.05, 0.05,
+                                                                    len(self._idx["qpos"]))
+        dmc_quadruped._find_non_contacting_height(physics, orientation)
+        self._start = physics.data.xpos[self._idx["torso"]].copy()
+        super().initialize_episode(physics)
+
+    # -- readings --------------------------------------------------------------------
+    def forward_velocity(self, physics) -> float:
+        rot = physics.data.xmat[self._idx["torso"]].reshape(3, 3)
+        return float(rot @ physics.data.sensordata[self._idx["vel"]] @ self.forward)
+
+    def forward_progress(self, physics) -> float:
+        """Metres travelled along the direction of travel since the episode began."""
+        return float((physics.data.xpos[self._idx["torso"]] - self._start) @ self.forward)
+
+    def get_reward(self, physics):
+        rot = physics.data.xmat[self._idx["torso"]].reshape(3, 3)
+        upright = (1.0 + rot[:, 2] @ self.ground_normal) / 2.0
+        v = self.forward_velocity(physics)
+        low, high = 0.9 * self.command, 1.1 * self.command
+        gap = max(low - v, v - high, 0.0) / self.command
+        return upright * float(np.exp(-0.5 * (gap * _GAUSS_SCALE) ** 2))
+
+    def observation_layout(self, physics) -> Layout:
+        n_hinge = len(self._idx["qpos"])
+        return Layout.from_sizes(OrderedDict(
+            joint_pos=n_hinge, joint_vel=n_hinge, actuator_state=physics.model.na,
+            gyro=3, accelerometer=3, gravity=3, velocimeter=3, toe_force=12, command=1,
+            height_scan=len(self._idx["rangefinder"])))
+
+    def state_layout(self, physics) -> Layout:
+        m = physics.model
+        return Layout.from_sizes(OrderedDict(qpos=m.nq, qvel=m.nv, act=m.na, command=1))
+
+    def robot_observation(self, physics, out: np.ndarray) -> None:
+        """Writes what the robot can measure (proprioception + height scan) into ``out``."""
+        d, i = physics.data, self._idx
+        rot = d.xmat[i["torso"]].reshape(3, 3)
+        rf = d.sensordata[i["rangefinder"]]
+        np.concatenate([
+            d.qpos[i["qpos"]], d.qvel[i["qvel"]], d.act,
+            d.sensordata[i["gyro"]], d.sensordata[i["accel"]], rot[2],  # gravity in body frame
+            d.sensordata[i["vel"]], np.arcsinh(d.sensordata[i["toe_force"]]), (self.command,),
+            np.where(rf == -1.0, 1.0, np.tanh(rf)),  # -1 means no hit: saturate like dm_control
+        ], out=out)
+
+    def privileged_state(self, physics, out: np.ndarray) -> None:
+        d = physics.data
+        np.concatenate([d.qpos, d.qvel, d.act, (self.command,)], out=out)
+
+    def get_observation(self, physics):
+        """dm_control-style observation dict (the fast path is :meth:`robot_observation`)."""
+        layout = self.observation_layout(physics)
+        flat = np.empty(layout.size)
+        self.robot_observation(physics, flat)
+        return layout.split(flat)

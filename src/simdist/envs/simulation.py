@@ -1,0 +1,153 @@
+"""One simulated world: dm_control physics + task + randomisers, stepped without wrappers.
+
+:class:`Simulation` drives the dm_control task exactly as ``control.Environment`` does
+(``before_step`` / ``physics.step`` / ``after_step``) but writes readings straight into
+caller-owned numpy rows, so a batch of simulations fills one array per key with no
+per-step dict building. Everything that makes a rollout random (task initial states,
+randomisation draws) comes from generators reseeded by :meth:`seed`, so a seed
+reproduces a rollout exactly.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from dm_control.rl import control
+
+from simdist.envs import tasks as task_registry
+from simdist.envs.layout import Layout
+from simdist.envs.model_editing import DynamicsEditor, VisualEditor
+from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
+from simdist.envs.rendering import rendering_error
+from simdist.envs.targets import TargetDomain
+
+
+class Simulation:
+    """A single dm_control world with dynamics/visual randomisation and a target shift.
+
+    Args:
+        spec: the task.
+        target: the fixed domain shift.
+        dynamics: per-episode dynamics randomisation, or ``None``.
+        visual: visual randomisation (overridden by ``target.visual`` when that is set).
+        pixels: render ``(image_size, image_size, 3)`` uint8 frames.
+        image_size: square render size.
+        camera_id: render camera (default: the task's).
+        seed: seed for every random draw.
+        task_kwargs: forwarded to the task builder (e.g. quadruped ``speeds``).
+    """
+
+    def __init__(self, spec: task_registry.TaskSpec, target: TargetDomain,
+                 dynamics: DynamicsRandomisation | None, visual: VisualRandomisation | None,
+                 pixels: bool, image_size: int, camera_id: int | None, seed: int,
+                 task_kwargs: dict | None = None):
+        if target.slope_deg and not spec.supports_slope:
+            raise ValueError(f"target {target.name!r} sets slope_deg={target.slope_deg} but task "
+                             f"{spec.name!r} has no slope; slopes exist for quadruped tasks")
+        self.spec, self.target, self.dynamics = spec, target, dynamics
+        self.pixels, self.image_size = pixels, int(image_size)
+        self.camera_id = spec.camera_id if camera_id is None else int(camera_id)
+        kwargs = {**spec.defaults, **(task_kwargs or {})}
+        self.physics, self.task, self.n_sub_steps = spec.build(target, seed, **kwargs)
+        self._dyn_editor = DynamicsEditor(self.physics.model.ptr, self.physics.data.ptr)
+        visual = target.visual or visual
+        self._vis_editor = VisualEditor(self.physics, visual, self.camera_id) \
+            if (visual is not None and pixels) else None
+        self.visual = visual
+        self.params = target.dynamics()
+        self.seed(seed)
+        # Layouts need an initialised episode (suite observations read the live state).
+        self._initialise_episode()
+        if spec.is_robot:
+            self.state_layout = self.task.state_layout(self.physics)
+            self.observation_layout = self.task.observation_layout(self.physics)
+        else:
+            self.state_layout = task_registry.suite_state_layout(self.task, self.physics)
+            self.observation_layout = None
+        self.action_low = self.physics.model.actuator_ctrlrange[:, 0].astype(np.float32)
+        self.action_high = self.physics.model.actuator_ctrlrange[:, 1].astype(np.float32)
+        limited = self.physics.model.actuator_ctrllimited.astype(bool)
+        self.action_low[~limited], self.action_high[~limited] = -np.inf, np.inf
+        self.seed(seed)
+        self.steps = 0
+
+    def seed(self, seed: int) -> None:
+        """Reseeds the task's initial-state draws and every randomisation draw."""
+        seq = np.random.SeedSequence(int(seed))
+        task_seed, dr_seed, vis_seed = seq.spawn(3)
+        self.task._random = np.random.RandomState(task_seed.generate_state(1)[0])
+        self._dr_rng = np.random.default_rng(dr_seed)
+        self._vis_rng = np.random.default_rng(vis_seed)
+
+    # -- episode control --------------------------------------------------------------
+    def _initialise_episode(self) -> None:
+        draw = self.dynamics.sample(self._dr_rng) if self.dynamics else DynamicsParams()
+        self.params = draw.compose(self.target.dynamics())
+        self._dyn_editor.apply(self.params)
+        self._pending = deque([np.zeros_like(self.physics.data.ctrl)] * self.params.action_latency)
+        with self.physics.reset_context():
+            self.task.initialize_episode(self.physics)
+        if self._vis_editor is not None:
+            self._vis_editor.randomise(self._vis_rng)
+
+    def reset(self, row: dict) -> None:
+        """Starts an episode and writes the first readings into ``row``'s arrays."""
+        self._initialise_episode()
+        self.steps = 0
+        self._read(row)
+        row["reward"][0] = 0.0
+
+    def step(self, action: np.ndarray, row: dict) -> None:
+        """Applies ``action`` (after any latency) and writes readings into ``row``."""
+        if self._pending:
+            self._pending.append(action)
+            action = self._pending.popleft()
+        reward, discount = 0.0, None
+        for _ in range(self.spec.action_repeat):
+            self.task.before_step(action, self.physics)
+            try:
+                self.physics.step(self.n_sub_steps)
+            except control.PhysicsError as err:
+                raise RuntimeError(
+                    f"{self.spec.name}: MuJoCo became unstable ({err}) with dynamics "
+                    f"{self.params}; the target or randomisation ranges may be too extreme"
+                ) from err
+            self.task.after_step(self.physics)
+            reward += self.task.get_reward(self.physics)
+            discount = self.task.get_termination(self.physics)
+            if discount is not None:
+                break
+        self.steps += 1
+        if self._vis_editor is not None and self.visual.every_step:
+            self._vis_editor.randomise(self._vis_rng)
+        self._read(row)
+        row["reward"][0] = reward
+        row["terminated"][0] = discount is not None
+        row["truncated"][0] = self.steps >= self.spec.max_episode_steps
+
+    def _read(self, row: dict) -> None:
+        if self.spec.is_robot:
+            self.task.privileged_state(self.physics, row["state"])
+            self.task.robot_observation(self.physics, row["observation"])
+            row["forward_progress"][0] = self.task.forward_progress(self.physics)
+        else:
+            task_registry.suite_state(self.task, self.physics, row["state"])
+        row["dynamics"][:] = self.params.as_array()
+        if self.pixels:
+            row["pixels"][:] = self.render()
+        row["terminated"][0] = False
+        row["truncated"][0] = False
+
+    def render(self, size: int | None = None, camera_id: int | None = None) -> np.ndarray:
+        """Renders the current frame, uint8 ``(size, size, 3)``."""
+        size = size or self.image_size
+        try:
+            return self.physics.render(size, size, camera_id=self.camera_id if camera_id is None
+                                       else camera_id)
+        except Exception as err:  # GL errors come in many types; name the fix.
+            raise rendering_error(err) from err
+
+    def layout(self, key: str) -> Layout:
+        return self.state_layout if key == "state" else self.observation_layout
+

@@ -1,0 +1,117 @@
+"""Target domains: parameterised stand-ins for "the real world".
+
+A :class:`TargetDomain` is a fixed shift applied to every episode of an environment:
+dynamics multipliers (friction, contact softness, motor strength), an added payload,
+action latency, slope geometry, and optionally a visual setting. Named presets lie
+**outside** the default training randomisation (:class:`DynamicsRandomisation`), which
+:func:`describe_ranges` prints side by side and a test checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
+
+
+@dataclass(frozen=True)
+class TargetDomain:
+    """A named, fixed domain shift.
+
+    Args:
+        name: label used in logs and results.
+        friction: scale on sliding friction (``< 1`` is slippery).
+        contact_softness: scale on the contact time constant (``> 1`` is softer ground).
+        motor_strength: scale on actuator force.
+        payload_kg: mass added to the robot's root body.
+        action_latency: extra control steps of action delay.
+        slope_deg: ground incline along the direction of travel (quadruped tasks only).
+        visual: visual randomisation in force in this domain, or ``None``.
+
+    Examples:
+        >>> target = TargetDomain(name="icy", friction=0.2)
+        >>> target.dynamics().friction
+        0.2
+        >>> get_target("slippery_slope").slope_deg > 0
+        True
+    """
+
+    name: str = "custom"
+    friction: float = 1.0
+    contact_softness: float = 1.0
+    motor_strength: float = 1.0
+    payload_kg: float = 0.0
+    action_latency: int = 0
+    slope_deg: float = 0.0
+    visual: VisualRandomisation | None = None
+
+    def __post_init__(self):
+        self.dynamics()  # validates the dynamics fields with their own messages
+        if not (math.isfinite(self.slope_deg) and -30.0 <= self.slope_deg <= 30.0):
+            raise ValueError(f"slope_deg must lie in [-30, 30], got {self.slope_deg}")
+
+    def dynamics(self) -> DynamicsParams:
+        """The dynamics part of the shift."""
+        return DynamicsParams(
+            friction=self.friction,
+            contact_softness=self.contact_softness,
+            motor_strength=self.motor_strength,
+            payload_kg=self.payload_kg,
+            action_latency=self.action_latency,
+        )
+
+    def replace(self, **changes) -> TargetDomain:
+        """A copy with some fields changed (e.g. a milder slope)."""
+        return dataclasses.replace(self, **changes)
+
+
+SIM = TargetDomain(name="sim")
+
+PRESETS: dict[str, TargetDomain] = {
+    "sim": SIM,
+    # Low friction on an incline: feet slip downhill (the SimDist quadruped benchmark).
+    "slippery_slope": TargetDomain(name="slippery_slope", friction=0.3, slope_deg=12.0),
+    # Soft, compliant ground: contacts sink and rebound slowly.
+    "foam": TargetDomain(name="foam", contact_softness=6.0, friction=0.5),
+    # A 30 kg load (~28% of the quadruped's 107 kg) strapped to the torso.
+    "payload": TargetDomain(name="payload", payload_kg=30.0),
+    # Motors deliver 45% of their nominal force.
+    "weak_motors": TargetDomain(name="weak_motors", motor_strength=0.45),
+    # Three control steps (60 ms at 50 Hz) between command and actuation.
+    "laggy": TargetDomain(name="laggy", action_latency=3),
+    # Held-out textures and camera jitter, nominal dynamics (TWIST-style evaluation).
+    "unseen_scenes": TargetDomain(name="unseen_scenes",
+                                  visual=VisualRandomisation.heldout_evaluation()),
+}
+
+
+def get_target(target: str | TargetDomain | None) -> TargetDomain:
+    """Resolves a preset name (or passes a :class:`TargetDomain` through)."""
+    if target is None:
+        return SIM
+    if isinstance(target, TargetDomain):
+        return target
+    if target not in PRESETS:
+        raise ValueError(f"unknown target domain {target!r}; valid presets: "
+                         f"{', '.join(sorted(PRESETS))} (or pass a TargetDomain)")
+    return PRESETS[target]
+
+
+def describe_ranges(training: DynamicsRandomisation | None = None) -> str:
+    """A markdown table of the training ranges beside every preset's value."""
+    training = training or DynamicsRandomisation()
+    fields = ("friction", "contact_softness", "motor_strength", "action_latency")
+    head = "| parameter | training range | " + " | ".join(PRESETS) + " |"
+    rows = [head, "|" + " --- |" * (len(PRESETS) + 2)]
+    for f in fields:
+        lo, hi = getattr(training, f)
+        vals = " | ".join(f"{getattr(t, f):g}" for t in PRESETS.values())
+        rows.append(f"| {f} | {lo:g} - {hi:g} | {vals} |")
+    lo, hi = training.mass
+    rows.append(f"| payload_kg | mass x {lo:g} - {hi:g} | "
+                + " | ".join(f"{t.payload_kg:g}" for t in PRESETS.values()) + " |")
+    rows.append("| slope_deg | task's own (flat: 0) | "
+                + " | ".join(f"{t.slope_deg:g}" for t in PRESETS.values()) + " |")
+    return "\n".join(rows)
