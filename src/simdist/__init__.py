@@ -5,7 +5,7 @@ plan with latent MPPI, finetune only the dynamics on target data) and TWIST
 (teacher-student world-model distillation from state to pixels) on TorchRL.
 """
 
-from simdist.envs.rendering import configure_headless_rendering
+from simdist.rendering import configure_headless_rendering
 
 # Must run before dm_control/mujoco pick a GL backend (they read MUJOCO_GL on import).
 configure_headless_rendering()

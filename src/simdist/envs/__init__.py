@@ -10,7 +10,7 @@ Examples:
 from simdist.envs.env import SimDistEnv
 from simdist.envs.layout import Layout
 from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
-from simdist.envs.rendering import RenderingUnavailableError
+from simdist.rendering import RenderingUnavailableError
 from simdist.envs.targets import PRESETS as TARGETS
 from simdist.envs.targets import TargetDomain, describe_ranges, get_target
 from simdist.envs.tasks import TASKS, TaskSpec, get_task

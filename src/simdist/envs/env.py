@@ -41,6 +41,7 @@ class SimDistEnv(EnvBase):
         target: a target-domain preset name or :class:`TargetDomain` (default: sim).
         seed: seeds every random draw; equal seeds give identical rollouts.
         task_kwargs: task options (quadruped: ``speeds``, ``slope_deg``).
+        max_episode_steps: truncation length in agent steps (default: the task's).
         device: device of the returned tensors.
 
     Examples:
@@ -57,7 +58,8 @@ class SimDistEnv(EnvBase):
                  dynamics_randomisation: DynamicsRandomisation | None = None,
                  visual_randomisation: VisualRandomisation | None = None,
                  target: str | TargetDomain | None = None, seed: int = 0,
-                 task_kwargs: dict | None = None, device: str | torch.device = "cpu"):
+                 task_kwargs: dict | None = None, max_episode_steps: int | None = None,
+                 device: str | torch.device = "cpu"):
         spec = get_task(task)
         target = get_target(target)
         if num_envs is not None and num_envs < 1:
@@ -71,7 +73,7 @@ class SimDistEnv(EnvBase):
         self.task_spec, self.target, self.pixels = spec, target, pixels
         self.sims = [
             Simulation(spec, target, dynamics_randomisation, visual_randomisation, pixels,
-                       image_size, camera_id, s, task_kwargs)
+                       image_size, camera_id, s, task_kwargs, max_episode_steps)
             for s in self._seeds(seed, n)
         ]
         self._batched = num_envs is not None
@@ -128,7 +130,8 @@ class SimDistEnv(EnvBase):
             out[key] = torch.from_numpy(arr.copy())
         done = out["terminated"] | out["truncated"]
         out["done"] = done
-        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+        # Shapes and dtypes come from our own buffers: skip TensorDict's validation.
+        return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         mask = None
@@ -143,7 +146,7 @@ class SimDistEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action")
-        actions = action.detach().to("cpu", torch.float64).numpy().reshape(len(self.sims), -1)
+        actions = action.detach().cpu().numpy().reshape(len(self.sims), -1)
         if not np.isfinite(actions).all():
             raise ValueError(f"{self.task_spec.name}: non-finite value in 'action': {action}")
         for sim, act, row in zip(self.sims, actions, self._rows):

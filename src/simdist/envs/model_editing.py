@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 
 from simdist.envs.randomisation import DynamicsParams, VisualRandomisation
-from simdist.envs.rendering import rendering_error
+from simdist.rendering import rendering_error
 from simdist.envs.textures import ColourBank, TextureBank
 
 
@@ -35,7 +35,9 @@ class DynamicsEditor:
     """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData):
-        self.model, self.data = model, data
+        self.model = model
+        # mj_setConst overwrites the qpos of the MjData it is given: use a scratch one.
+        self._scratch = mujoco.MjData(model)
         self._root = root_body_id(model)
         self._nominal = {
             name: getattr(model, name).copy()
@@ -64,7 +66,7 @@ class DynamicsEditor:
         m.geom_solref[:] = n["geom_solref"]
         m.geom_solref[:, 0] *= params.contact_softness
         # Subtree masses and invweights are derived from masses: recompute them.
-        mujoco.mj_setConst(m, self.data)
+        mujoco.mj_setConst(m, self._scratch)
 
 
 class VisualEditor:
@@ -93,7 +95,8 @@ class VisualEditor:
         self._geoms = np.flatnonzero((m.geom_matid < 0) & (m.geom_rgba[:, 3] > 0))
         self._nominal = {name: getattr(m, name).copy() for name in
                          ("mat_rgba", "geom_rgba", "light_diffuse", "light_pos",
-                          "cam_pos", "cam_quat")}
+                          "light_pos0", "light_poscom0", "cam_pos", "cam_quat", "cam_pos0",
+                          "cam_poscom0", "cam_mat0")}
         self._ambient = m.vis.headlight.ambient.copy()
 
     @staticmethod
@@ -115,11 +118,19 @@ class VisualEditor:
             scale = rng.uniform(*c.light_intensity, size=(m.nlight, 1))
             tint = rng.uniform(0.8, 1.0, size=(m.nlight, 3))
             m.light_diffuse[:] = np.clip(n["light_diffuse"] * scale * tint, 0, 1)
-            m.light_pos[:] = n["light_pos"] + rng.uniform(-0.5, 0.5, size=n["light_pos"].shape)
+            offset = rng.uniform(-0.5, 0.5, size=n["light_pos"].shape)
+            # Tracking lights/cameras are placed from the *0 / *com0 fields (set by
+            # mj_setConst): write all so every mode sees this draw, none carries over.
+            m.light_pos[:] = n["light_pos"] + offset
+            m.light_pos0[:] = n["light_pos0"] + offset
+            m.light_poscom0[:] = n["light_poscom0"] + offset
             m.vis.headlight.ambient[:] = self._ambient * rng.uniform(0.5, 1.5)
         if c.camera and m.ncam:
             i = self.camera_id
-            m.cam_pos[i] = n["cam_pos"][i] + rng.uniform(-1, 1, 3) * c.camera_position_jitter
+            offset = rng.uniform(-1, 1, 3) * c.camera_position_jitter
+            m.cam_pos[i] = n["cam_pos"][i] + offset
+            m.cam_pos0[i] = n["cam_pos0"][i] + offset
+            m.cam_poscom0[i] = n["cam_poscom0"][i] + offset
             axis = rng.normal(size=3)
             angle = np.deg2rad(rng.uniform(-1, 1) * c.camera_angle_jitter_deg)
             jitter = np.zeros(4)
@@ -127,6 +138,13 @@ class VisualEditor:
             quat = np.zeros(4)
             mujoco.mju_mulQuat(quat, n["cam_quat"][i], jitter)
             m.cam_quat[i] = quat
+            jitter_mat = np.zeros(9)
+            mujoco.mju_quat2Mat(jitter_mat, jitter)
+            m.cam_mat0[i] = (n["cam_mat0"][i].reshape(3, 3) @ jitter_mat.reshape(3, 3)).ravel()
+        if (c.lighting and m.nlight) or (c.camera and m.ncam):
+            # Cameras and lights are placed in mj_camlight during physics steps; without
+            # this the frame would show the previous draw's lights and camera.
+            mujoco.mj_camlight(m, self.physics.data.ptr)
         if self._textures is not None and self.texture_ids:
             for tex in self.texture_ids:
                 h, w = int(m.tex_height[tex]), int(m.tex_width[tex])

@@ -19,7 +19,7 @@ from simdist.envs import tasks as task_registry
 from simdist.envs.layout import Layout
 from simdist.envs.model_editing import DynamicsEditor, VisualEditor
 from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
-from simdist.envs.rendering import rendering_error
+from simdist.rendering import rendering_error
 from simdist.envs.targets import TargetDomain
 
 
@@ -36,16 +36,20 @@ class Simulation:
         camera_id: render camera (default: the task's).
         seed: seed for every random draw.
         task_kwargs: forwarded to the task builder (e.g. quadruped ``speeds``).
+        max_episode_steps: truncation length (default: the task's).
     """
 
     def __init__(self, spec: task_registry.TaskSpec, target: TargetDomain,
                  dynamics: DynamicsRandomisation | None, visual: VisualRandomisation | None,
                  pixels: bool, image_size: int, camera_id: int | None, seed: int,
-                 task_kwargs: dict | None = None):
+                 task_kwargs: dict | None = None, max_episode_steps: int | None = None):
         if target.slope_deg and not spec.supports_slope:
             raise ValueError(f"target {target.name!r} sets slope_deg={target.slope_deg} but task "
                              f"{spec.name!r} has no slope; slopes exist for quadruped tasks")
         self.spec, self.target, self.dynamics = spec, target, dynamics
+        self.max_episode_steps = int(max_episode_steps or spec.max_episode_steps)
+        if self.max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         self.pixels, self.image_size = pixels, int(image_size)
         self.camera_id = spec.camera_id if camera_id is None else int(camera_id)
         kwargs = {**spec.defaults, **(task_kwargs or {})}
@@ -124,7 +128,7 @@ class Simulation:
         self._read(row)
         row["reward"][0] = reward
         row["terminated"][0] = discount is not None
-        row["truncated"][0] = self.steps >= self.spec.max_episode_steps
+        row["truncated"][0] = self.steps >= self.max_episode_steps
 
     def _read(self, row: dict) -> None:
         if self.spec.is_robot:
@@ -142,11 +146,12 @@ class Simulation:
     def render(self, size: int | None = None, camera_id: int | None = None) -> np.ndarray:
         """Renders the current frame, uint8 ``(size, size, 3)``."""
         size = size or self.image_size
+        camera = self.camera_id if camera_id is None else camera_id
         try:
-            return self.physics.render(size, size, camera_id=self.camera_id if camera_id is None
-                                       else camera_id)
+            frame = self.physics.render(size, size, camera_id=camera)
         except Exception as err:  # GL errors come in many types; name the fix.
             raise rendering_error(err) from err
+        return np.ascontiguousarray(frame)  # dm_control returns a vertically flipped view
 
     def layout(self, key: str) -> Layout:
         return self.state_layout if key == "state" else self.observation_layout
