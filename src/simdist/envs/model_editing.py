@@ -42,7 +42,7 @@ class DynamicsEditor:
         self._nominal = {
             name: getattr(model, name).copy()
             for name in ("geom_friction", "body_mass", "body_inertia", "dof_damping",
-                         "actuator_gainprm", "actuator_biasprm", "geom_solref")
+                         "actuator_gainprm", "actuator_biasprm", "geom_solref", "geom_solimp")
         }
 
     def apply(self, params: DynamicsParams) -> None:
@@ -63,8 +63,15 @@ class DynamicsEditor:
         m.actuator_biasprm[:] = n["actuator_biasprm"]
         # force = gain*ctrl + b0 + b1*q + b2*qdot: scaling gain and all biases scales force.
         m.actuator_biasprm[:, :3] *= params.motor_strength
+        # Softer contact: longer time constant, proportionally larger compliance
+        # (1 - impedance) and a wider transition zone. The time constant alone barely
+        # moves MuJoCo's steady-state penetration at dm_control's impedances.
         m.geom_solref[:] = n["geom_solref"]
         m.geom_solref[:, 0] *= params.contact_softness
+        m.geom_solimp[:] = n["geom_solimp"]
+        compliance = (1.0 - n["geom_solimp"][:, :2]) * params.contact_softness
+        m.geom_solimp[:, :2] = np.clip(1.0 - compliance, 1e-4, 0.9999)
+        m.geom_solimp[:, 2] *= params.contact_softness
         # Subtree masses and invweights are derived from masses: recompute them.
         mujoco.mj_setConst(m, self._scratch)
 

@@ -42,9 +42,9 @@ class DynamicsParams:
         mass: scale on every body's mass and inertia.
         damping: scale on every joint's damping.
         motor_strength: scale on actuator force (gain and position/velocity bias).
-        contact_softness: scale on the contact time constant (``solref[0]``); > 1 is
-            softer. MuJoCo clamps time constants below two timesteps, so values < 1
-            can be no-ops for models already at that limit.
+        contact_softness: scale on the contact time constant (``solref[0]``), the
+            compliance ``1 - solimp[0:2]`` and the width ``solimp[2]``; > 1 is softer. MuJoCo clamps time
+            constants below two timesteps, so values < 1 mostly act through solimp.
         action_latency: whole control steps between choosing and applying an action.
         payload_kg: mass added to the root body (inertia scaled with it).
 

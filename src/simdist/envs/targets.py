@@ -74,7 +74,7 @@ PRESETS: dict[str, TargetDomain] = {
     # Low friction on an incline: feet slip downhill (the SimDist quadruped benchmark).
     "slippery_slope": TargetDomain(name="slippery_slope", friction=0.3, slope_deg=12.0),
     # Soft, compliant ground: contacts sink and rebound slowly.
-    "foam": TargetDomain(name="foam", contact_softness=6.0, friction=0.5),
+    "foam": TargetDomain(name="foam", contact_softness=8.0, friction=0.5),
     # A 30 kg load (~28% of the quadruped's 107 kg) strapped to the torso.
     "payload": TargetDomain(name="payload", payload_kg=30.0),
     # Motors deliver 45% of their nominal force.
