@@ -2,8 +2,9 @@
 
 Reports env steps/s for state-only quadruped and for 64x64 pixels, each as a ratio to the
 raw dm_control loop (``suite.load(...).step`` on the same task family, zero actions),
-plus TorchRL's stock ``DMControlEnv`` for reference. Repeats alternate between the
-contenders and medians are reported, so drifting CPU clocks hit all of them alike.
+plus TorchRL's stock ``DMControlEnv`` for reference. This machine's throughput drifts by
+up to 2x between seconds, so each repeat runs every contender back to back, ratios are
+taken within a repeat (paired), and medians over many short repeats are reported.
 
 Usage:
     python benchmarks/env_throughput.py            # ~2 minutes on 2 cores
@@ -57,14 +58,19 @@ def _torchrl_loop(env, steps):
     return run
 
 
-def measure(contenders: dict, repeats: int) -> dict:
+def measure(contenders: dict, repeats: int, reference_for) -> dict:
+    """Median rate and median paired ratio to the reference, per contender."""
     rates = {name: [] for name in contenders}
-    for name, run in contenders.items():
+    for run in contenders.values():
         run()  # warm-up
     for _ in range(repeats):
         for name, run in contenders.items():
             rates[name].append(run())
-    return {name: statistics.median(r) for name, r in rates.items()}
+    return {name: {"steps_per_s": statistics.median(r),
+                   "ratio_to_raw": statistics.median(
+                       a / b for a, b in zip(r, rates[reference_for(name)])),
+                   "spread": [min(r), max(r)]}
+            for name, r in rates.items()}
 
 
 def main():
@@ -73,7 +79,14 @@ def main():
     parser.add_argument("--json", help="write the figures to this file")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    steps, pixel_steps, repeats = (300, 20, 2) if args.quick else (2000, 100, 5)
+    steps, pixel_steps, repeats = (300, 10, 2) if args.quick else (500, 30, 11)
+
+    def state_ref(name):
+        return "raw dm_control quadruped-walk"
+
+    def pixel_ref(name):
+        return ("raw dm_control cartpole-balance + 64px render" if "cartpole" in name
+                else "raw dm_control quadruped-walk + 64px render")
 
     state = measure({
         "raw dm_control quadruped-walk": _raw_loop("quadruped", "walk", steps, False, 2),
@@ -82,7 +95,7 @@ def main():
             make_env("quadruped-flat", num_envs=16), max(1, steps // 16)),
         "torchrl DMControlEnv quadruped-walk": _torchrl_loop(
             DMControlEnv("quadruped", "walk"), steps),
-    }, repeats)
+    }, repeats, state_ref)
     pixels = measure({
         "raw dm_control quadruped-walk + 64px render": _raw_loop("quadruped", "walk",
                                                                  pixel_steps, True, 2),
@@ -96,20 +109,19 @@ def main():
             make_env("cartpole-balance", pixels=True,
                      visual_randomisation=simdist.envs.VisualRandomisation.training()),
             pixel_steps),
-    }, repeats)
+    }, max(2, repeats // 3), pixel_ref)
 
-    def table(rates, reference_for):
-        print(f"{'contender':58s} {'steps/s':>10s} {'x raw':>7s}")
-        for name, rate in rates.items():
-            ref = rates[reference_for(name)]
-            print(f"{name:58s} {rate:10.0f} {rate / ref:7.2f}")
+    def table(results):
+        print(f"{'contender':56s} {'steps/s':>8s} {'x raw':>6s}  {'min-max steps/s':>16s}")
+        for name, r in results.items():
+            lo, hi = r["spread"]
+            print(f"{name:56s} {r['steps_per_s']:8.0f} {r['ratio_to_raw']:6.2f}  "
+                  f"{lo:7.0f}-{hi:<8.0f}")
 
-    print("\nState-only (one core, zero actions, medians of", repeats, "repeats)")
-    table(state, lambda name: "raw dm_control quadruped-walk")
+    print(f"\nState-only (one core, zero actions, {repeats} paired repeats)")
+    table(state)
     print("\nPixels, 64x64, software EGL")
-    table(pixels, lambda name: ("raw dm_control cartpole-balance + 64px render"
-                                if "cartpole" in name else
-                                "raw dm_control quadruped-walk + 64px render"))
+    table(pixels)
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"state": state, "pixels": pixels}, f, indent=2)

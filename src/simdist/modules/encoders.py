@@ -1,0 +1,133 @@
+"""Observation encoders: state MLP (TWIST teacher), Dreamer pixel CNN, SimDist history MLP."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from simdist.modules.checks import check_finite, check_last_dims
+
+
+def mlp(in_dim: int, out_dim: int, hidden: int, layers: int,
+        activation: type[nn.Module] = nn.ELU, norm: bool = True) -> nn.Sequential:
+    """``layers`` hidden layers of ``hidden`` units (LayerNorm + activation), then a linear."""
+    blocks, dim = [], in_dim
+    for _ in range(layers):
+        blocks += [nn.Linear(dim, hidden)]
+        if norm:
+            blocks += [nn.LayerNorm(hidden)]
+        blocks += [activation()]
+        dim = hidden
+    blocks.append(nn.Linear(dim, out_dim))
+    return nn.Sequential(*blocks)
+
+
+class StateEncoder(nn.Module):
+    """MLP over a privileged state vector (TWIST teacher: 3 x 512 ELU).
+
+    Examples:
+        >>> enc = StateEncoder(5, embed_dim=32, hidden=64)
+        >>> enc(torch.zeros(2, 7, 5)).shape
+        torch.Size([2, 7, 32])
+    """
+
+    def __init__(self, state_dim: int, embed_dim: int = 512, hidden: int = 512, layers: int = 3):
+        super().__init__()
+        self.state_dim, self.embed_dim = state_dim, embed_dim
+        self.net = mlp(state_dim, embed_dim, hidden, layers - 1)
+
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        check_last_dims("state", state, (self.state_dim,))
+        return self.net(state)
+
+
+class PixelEncoder(nn.Module):
+    """Dreamer's convolutional encoder for 64x64 RGB (uint8, channels last).
+
+    Four 4x4 stride-2 convolutions with ``depth * (1, 2, 4, 8)`` channels, as in
+    DreamerV2; output is the flattened ``8 * depth * 2 * 2`` feature vector.
+
+    Examples:
+        >>> enc = PixelEncoder(depth=8)
+        >>> enc(torch.zeros(3, 64, 64, 3, dtype=torch.uint8)).shape
+        torch.Size([3, 256])
+    """
+
+    def __init__(self, depth: int = 32, image_size: int = 64):
+        super().__init__()
+        if image_size != 64:
+            raise ValueError(f"PixelEncoder expects 64x64 images, got image_size={image_size}")
+        self.image_size = image_size
+        layers, channels = [], 3
+        for i in range(4):
+            layers += [nn.Conv2d(channels, depth * 2**i, 4, stride=2), nn.ELU()]
+            channels = depth * 2**i
+        self.net = nn.Sequential(*layers, nn.Flatten())
+        self.embed_dim = channels * 2 * 2
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        check_last_dims("pixels", pixels, (self.image_size, self.image_size, 3))
+        lead = pixels.shape[:-3]
+        x = pixels.reshape(-1, *pixels.shape[-3:]).permute(0, 3, 1, 2)
+        x = x.float() / 255.0 - 0.5 if pixels.dtype == torch.uint8 else x.float()
+        return self.net(x).reshape(*lead, self.embed_dim)
+
+
+class HistoryEncoder(nn.Module):
+    """SimDist encoder ``z_t = enc(o_{t-k+1..t})``: an MLP over a window of observations.
+
+    Windows never reach across an episode start: positions before the first step of the
+    current episode repeat that first observation (a robot has no history yet there).
+    With ``simnorm_groups`` the latent is split into groups, each softmax-normalised
+    (TD-MPC2's SimNorm), which keeps latents bounded without a reconstruction loss.
+
+    Examples:
+        >>> enc = HistoryEncoder(obs_dim=4, history=3, latent_dim=16, hidden=32)
+        >>> obs = torch.randn(2, 10, 4)
+        >>> is_init = torch.zeros(2, 10, dtype=torch.bool); is_init[:, 0] = True
+        >>> enc.encode_sequence(obs, is_init).shape
+        torch.Size([2, 10, 16])
+    """
+
+    def __init__(self, obs_dim: int, history: int = 4, latent_dim: int = 64, hidden: int = 256,
+                 layers: int = 2, simnorm_groups: int | None = 8):
+        super().__init__()
+        if history < 1:
+            raise ValueError(f"history must be >= 1, got {history}")
+        if simnorm_groups and latent_dim % simnorm_groups:
+            raise ValueError(f"latent_dim={latent_dim} not divisible by "
+                             f"simnorm_groups={simnorm_groups}")
+        self.obs_dim, self.history, self.latent_dim = obs_dim, history, latent_dim
+        self.simnorm_groups = simnorm_groups
+        self.net = mlp(obs_dim * history, latent_dim, hidden, layers)
+
+    def forward(self, window: torch.Tensor) -> torch.Tensor:
+        """Encodes windows ``[..., history, obs_dim]`` (oldest first) into latents."""
+        check_last_dims("observation window", window, (self.history, self.obs_dim))
+        z = self.net(window.flatten(-2))
+        return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z
+
+    def windows(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
+        """``[B, T, D]`` sequences -> ``[B, T, history, D]`` windows clamped to episode starts."""
+        check_last_dims("observation", obs, (self.obs_dim,))
+        B, T = obs.shape[:2]
+        steps = torch.arange(T, device=obs.device)
+        first = is_init.clone()
+        first[:, 0] = True  # a slice starts a window whether or not an episode does
+        episode_start = torch.cummax(torch.where(first, steps, torch.zeros_like(steps)), 1).values
+        offsets = torch.arange(self.history - 1, -1, -1, device=obs.device)
+        index = (steps[None, :, None] - offsets).clamp_min(0)  # [1, T, k]
+        index = torch.maximum(index, episode_start[:, :, None])  # [B, T, k]
+        return torch.gather(obs[:, :, None].expand(B, T, self.history, -1), 1,
+                            index[..., None].expand(B, T, self.history, self.obs_dim))
+
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
+        """Latents for every step of ``[B, T, D]`` sequences."""
+        check_finite("observation", obs)
+        return self(self.windows(obs, is_init))
+
+
+def simnorm(z: torch.Tensor, groups: int) -> torch.Tensor:
+    """TD-MPC2's simplicial normalisation: softmax within each of ``groups`` chunks."""
+    shape = z.shape
+    return torch.softmax(z.reshape(*shape[:-1], groups, -1), -1).reshape(shape)
