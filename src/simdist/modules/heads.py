@@ -1,0 +1,121 @@
+"""Prediction heads: reward, value, continue, decoders, the Dreamer actor, the policy prior."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torchrl.modules import TanhNormal
+
+from simdist.modules.checks import check_last_dims
+from simdist.modules.encoders import mlp
+
+
+class ScalarHead(nn.Module):
+    """MLP to one scalar per input (reward, value, continue logit).
+
+    Examples:
+        >>> ScalarHead(6, hidden=8)(torch.zeros(4, 6)).shape
+        torch.Size([4, 1])
+    """
+
+    def __init__(self, in_dim: int, hidden: int = 200, layers: int = 2):
+        super().__init__()
+        self.in_dim = in_dim
+        self.net = mlp(in_dim, 1, hidden, layers)
+
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        x = torch.cat(inputs, -1) if len(inputs) > 1 else inputs[0]
+        check_last_dims("head input", x, (self.in_dim,))
+        return self.net(x)
+
+
+class StateDecoder(nn.Module):
+    """MLP from model features to a state vector (unit-variance Gaussian mean).
+
+    Examples:
+        >>> StateDecoder(6, state_dim=3, hidden=8)(torch.zeros(2, 6)).shape
+        torch.Size([2, 3])
+    """
+
+    def __init__(self, feature_dim: int, state_dim: int, hidden: int = 400, layers: int = 3):
+        super().__init__()
+        self.net = mlp(feature_dim, state_dim, hidden, layers)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.net(features)
+
+
+class PixelDecoder(nn.Module):
+    """DreamerV2's transposed-conv decoder to 64x64x3, in ``pixels / 255 - 0.5`` units.
+
+    Examples:
+        >>> PixelDecoder(6, depth=4)(torch.zeros(2, 5, 6)).shape
+        torch.Size([2, 5, 64, 64, 3])
+    """
+
+    def __init__(self, feature_dim: int, depth: int = 32):
+        super().__init__()
+        self.depth = depth
+        self.linear = nn.Linear(feature_dim, 32 * depth)
+        self.net = nn.Sequential(
+            nn.ConvTranspose2d(32 * depth, 4 * depth, 5, stride=2), nn.ELU(),
+            nn.ConvTranspose2d(4 * depth, 2 * depth, 5, stride=2), nn.ELU(),
+            nn.ConvTranspose2d(2 * depth, depth, 6, stride=2), nn.ELU(),
+            nn.ConvTranspose2d(depth, 3, 6, stride=2),
+        )
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        lead = features.shape[:-1]
+        x = self.linear(features.reshape(-1, features.shape[-1]))[..., None, None]
+        return self.net(x).permute(0, 2, 3, 1).reshape(*lead, 64, 64, 3)
+
+
+def pixels_to_target(pixels: torch.Tensor) -> torch.Tensor:
+    """uint8 pixels to the decoder's ``[-0.5, 0.5]`` units."""
+    return pixels.float() / 255.0 - 0.5
+
+
+class Actor(nn.Module):
+    """Dreamer actor: tanh-squashed Gaussian over actions in [-1, 1].
+
+    Examples:
+        >>> actor = Actor(6, action_dim=2, hidden=8)
+        >>> actor(torch.zeros(3, 6)).shape
+        torch.Size([3, 2])
+        >>> actor.distribution(torch.zeros(3, 6)).rsample().shape
+        torch.Size([3, 2])
+    """
+
+    def __init__(self, feature_dim: int, action_dim: int, hidden: int = 400, layers: int = 4,
+                 min_std: float = 0.1, init_std: float = 1.0):
+        super().__init__()
+        self.action_dim, self.min_std = action_dim, min_std
+        self._init_bias = torch.log(torch.expm1(torch.tensor(init_std)))
+        self.net = mlp(feature_dim, 2 * action_dim, hidden, layers)
+
+    def distribution(self, features: torch.Tensor) -> TanhNormal:
+        mean, raw_std = self.net(features).chunk(2, -1)
+        std = nn.functional.softplus(raw_std + self._init_bias.to(raw_std)) + self.min_std
+        return TanhNormal(mean, std, upscale=5.0)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        """Deterministic action (the distribution's mode)."""
+        mean, _ = self.net(features).chunk(2, -1)
+        return torch.tanh(mean)
+
+
+class PolicyPrior(nn.Module):
+    """SimDist's policy head: a deterministic action in [-1, 1] from a latent (BC-trained).
+
+    Examples:
+        >>> PolicyPrior(16, action_dim=3, hidden=8)(torch.zeros(2, 16)).shape
+        torch.Size([2, 3])
+    """
+
+    def __init__(self, latent_dim: int, action_dim: int, hidden: int = 256, layers: int = 2):
+        super().__init__()
+        self.action_dim = action_dim
+        self.net = mlp(latent_dim, action_dim, hidden, layers)
+
+    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self.net(latent))

@@ -1,0 +1,117 @@
+"""SimDist's latent world model: history encoder, latent dynamics, reward/value/policy heads.
+
+No reconstruction anywhere: the latent is shaped only by consistency (dynamics must
+predict the encoder's future latents), reward, value and behaviour cloning. SimNorm on the
+encoder and dynamics outputs (TD-MPC2) keeps the latent bounded.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from simdist.modules.checks import check_last_dims
+from simdist.modules.encoders import HistoryEncoder, mlp, simnorm
+from simdist.modules.heads import PolicyPrior, ScalarHead
+
+SIMDIST_SIZES = {
+    "tiny": dict(latent_dim=16, hidden=32, history=2, simnorm_groups=4),
+    "small": dict(latent_dim=64, hidden=256, history=4, simnorm_groups=8),
+    "paper": dict(latent_dim=64, hidden=512, history=25, simnorm_groups=8),
+}
+
+
+class MLPDynamics(nn.Module):
+    """Residual MLP transition ``z' = norm(z + f([z, a]))`` (swappable part).
+
+    Examples:
+        >>> dyn = MLPDynamics(latent_dim=16, action_dim=2, hidden=32, simnorm_groups=4)
+        >>> dyn(torch.rand(5, 16), torch.zeros(5, 2)).shape
+        torch.Size([5, 16])
+    """
+
+    def __init__(self, latent_dim: int, action_dim: int, hidden: int = 256, layers: int = 2,
+                 simnorm_groups: int | None = 8):
+        super().__init__()
+        self.latent_dim, self.action_dim, self.simnorm_groups = latent_dim, action_dim, simnorm_groups
+        self.net = mlp(latent_dim + action_dim, latent_dim, hidden, layers, activation=nn.Mish)
+
+    def forward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        z = latent + self.net(torch.cat([latent, action], -1))
+        return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z
+
+
+class SimDistWorldModel(nn.Module):
+    """Encoder, dynamics, reward ``r(z, a)``, value ``V(z)`` and policy prior ``pi(z)``.
+
+    Verbs (TD-MPC2 style): :meth:`encode`, :meth:`encode_sequence`, :meth:`next`,
+    :meth:`rollout`, :meth:`reward`, :meth:`value`, :meth:`policy`. Parts are attributes
+    (``encoder``, ``dynamics``, ``reward_head``, ``value_head``, ``policy_head``) so
+    losses can train or freeze them by name; :meth:`parts` lists them.
+
+    Examples:
+        >>> wm = SimDistWorldModel.build(obs_dim=10, action_dim=3, size="tiny")
+        >>> obs = torch.randn(4, 7, 10); is_init = torch.zeros(4, 7, dtype=torch.bool)
+        >>> z = wm.encode_sequence(obs, is_init)
+        >>> wm.rollout(z[:, 0], torch.zeros(4, 5, 3)).shape
+        torch.Size([4, 5, 16])
+        >>> wm.value(z).shape, wm.reward(z, torch.zeros(4, 7, 3)).shape
+        (torch.Size([4, 7, 1]), torch.Size([4, 7, 1]))
+    """
+
+    PARTS = ("encoder", "dynamics", "reward_head", "value_head", "policy_head")
+
+    def __init__(self, encoder: HistoryEncoder, dynamics: nn.Module, reward_head: nn.Module,
+                 value_head: nn.Module, policy_head: nn.Module):
+        super().__init__()
+        self.encoder, self.dynamics = encoder, dynamics
+        self.reward_head, self.value_head, self.policy_head = reward_head, value_head, policy_head
+        self.latent_dim, self.action_dim = encoder.latent_dim, dynamics.action_dim
+
+    @classmethod
+    def build(cls, obs_dim: int, action_dim: int, size: str = "small",
+              dynamics: nn.Module | None = None, **overrides) -> SimDistWorldModel:
+        """Builds a model from the size table (``tiny``, ``small``, ``paper``)."""
+        if size not in SIMDIST_SIZES:
+            raise ValueError(f"unknown model size {size!r}; valid: {', '.join(SIMDIST_SIZES)}")
+        s = {**SIMDIST_SIZES[size], **overrides}
+        latent, hidden, groups = s["latent_dim"], s["hidden"], s["simnorm_groups"]
+        return cls(
+            HistoryEncoder(obs_dim, s["history"], latent, hidden, simnorm_groups=groups),
+            dynamics or MLPDynamics(latent, action_dim, hidden, simnorm_groups=groups),
+            ScalarHead(latent + action_dim, hidden),
+            ScalarHead(latent, hidden),
+            PolicyPrior(latent, action_dim, hidden),
+        )
+
+    def parts(self) -> dict[str, nn.Module]:
+        return {name: getattr(self, name) for name in self.PARTS}
+
+    # -- verbs ----------------------------------------------------------------------------
+    def encode(self, window: torch.Tensor) -> torch.Tensor:
+        return self.encoder(window)
+
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
+        return self.encoder.encode_sequence(obs, is_init)
+
+    def next(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.dynamics(latent, action)
+
+    def rollout(self, latent: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """Predicts ``z_{1..H}`` from ``z_0 [..., L]`` and ``actions [..., H, A]``."""
+        check_last_dims("latent", latent, (self.latent_dim,))
+        check_last_dims("actions", actions, (self.action_dim,))
+        out = []
+        for i in range(actions.shape[-2]):
+            latent = self.dynamics(latent, actions[..., i, :])
+            out.append(latent)
+        return torch.stack(out, -2)
+
+    def reward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.reward_head(latent, action)
+
+    def value(self, latent: torch.Tensor) -> torch.Tensor:
+        return self.value_head(latent)
+
+    def policy(self, latent: torch.Tensor) -> torch.Tensor:
+        return self.policy_head(latent)

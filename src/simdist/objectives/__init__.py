@@ -1,0 +1,12 @@
+"""Losses, one method step each, as TorchRL ``LossModule``s that name what they train."""
+
+from simdist.objectives.common import SimdistLoss
+from simdist.objectives.distillation import TwistDistillationLoss
+from simdist.objectives.dreamer import DreamerActorCriticLoss, DreamerWorldModelLoss, balanced_kl
+from simdist.objectives.imagined_alignment import ImaginedAlignmentLoss
+from simdist.objectives.probe import ProbeLoss
+from simdist.objectives.simdist_pretrain import DynamicsFinetuneLoss, SimDistPretrainLoss
+
+__all__ = ["SimdistLoss", "TwistDistillationLoss", "DreamerActorCriticLoss",
+           "DreamerWorldModelLoss", "balanced_kl", "ImaginedAlignmentLoss", "ProbeLoss",
+           "DynamicsFinetuneLoss", "SimDistPretrainLoss"]

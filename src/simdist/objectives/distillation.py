@@ -1,0 +1,90 @@
+"""TWIST teacher-student distillation (arXiv 2311.03622, Eq. 3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
+
+from simdist.modules.world_model import DreamerWorldModel
+from simdist.objectives.common import SimdistLoss, sequence_batch
+
+
+def check_compatible(teacher: DreamerWorldModel, student: DreamerWorldModel) -> None:
+    t, s = teacher.rssm, student.rssm
+    for field in ("deter_dim", "stoch", "classes", "action_dim", "unimix"):
+        if getattr(t, field) != getattr(s, field):
+            raise ValueError(f"teacher and student RSSMs differ in {field}: "
+                             f"{getattr(t, field)} vs {getattr(s, field)}; TWIST distils "
+                             "latent to latent, so they must match")
+
+
+class TwistDistillationLoss(SimdistLoss):
+    """``||h^T - h^S||^2 + KL[p_S(z|h^S) || p_T(z|h^T)] + KL[q_S(z|h^S,o) || q_T(z|h^T,s)]``.
+
+    Teacher (privileged state) and student (images of the same steps) filter the same
+    slice; the teacher runs under ``torch.no_grad`` so it is frozen by construction.
+    Both draw their latent samples from **the same noise**, so a student that computes
+    exactly what the teacher computes has exactly zero loss. Terms are summed over
+    feature/latent dimensions and averaged over batch and time (the paper sums over time;
+    this only rescales the learning rate). The posterior states of both are written into
+    the input TensorDict under ``("teacher", ...)`` / ``("student", ...)`` so
+    :class:`ImaginedAlignmentLoss` can start from them without refiltering.
+
+    Examples:
+        >>> import copy
+        >>> teacher = DreamerWorldModel.teacher(state_dim=3, action_dim=1, size="tiny")
+        >>> student = copy.deepcopy(teacher)
+        >>> loss = TwistDistillationLoss(teacher, student)
+        >>> loss.set_keys(student_observation=("next", "state"))  # identical inputs
+        >>> td = TensorDict({"action": torch.randn(2, 5, 1),
+        ...                  "is_init": torch.zeros(2, 5, 1, dtype=torch.bool),
+        ...                  "next": {"state": torch.randn(2, 5, 3)}}, [2, 5])
+        >>> loss(td)["loss_distillation"].item()
+        0.0
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        teacher_observation: NestedKey = ("next", "state")
+        student_observation: NestedKey = ("next", "pixels")
+        action: NestedKey = "action"
+        is_init: NestedKey = "is_init"
+
+    default_keys = _AcceptedKeys
+
+    def __init__(self, teacher: DreamerWorldModel, student: DreamerWorldModel,
+                 belief_weight: float = 1.0, prior_weight: float = 1.0,
+                 posterior_weight: float = 1.0, check_inputs: bool = True):
+        super().__init__(check_inputs)
+        check_compatible(teacher, student)
+        self.teacher, self.student = teacher, student
+        self.weights = (belief_weight, prior_weight, posterior_weight)
+
+    def trainable_parameters(self):
+        return list(self.student.parameters())
+
+    def forward(self, td: TensorDictBase) -> TensorDict:
+        B, T = sequence_batch(td)
+        action = self.read(td, "action")
+        is_init = self.read_flag(td, "is_init", (B, T))
+        rssm = self.student.rssm
+        noise = torch.rand(B, T, rssm.stoch, rssm.classes, device=action.device)
+        with torch.no_grad():
+            teacher = self.teacher.observe(self.read(td, "teacher_observation"), action,
+                                           is_init, noise=noise)
+        student = self.student.observe(self.read(td, "student_observation"), action, is_init,
+                                       noise=noise)
+        belief = (teacher["belief"] - student["belief"]).pow(2).sum(-1).mean()
+        prior = rssm.kl(student["prior_logits"], teacher["prior_logits"]).mean()
+        posterior = rssm.kl(student["posterior_logits"], teacher["posterior_logits"]).mean()
+        wb, wp, wq = self.weights
+        for name, states in (("teacher", teacher), ("student", student)):
+            td.set((name, "belief"), states["belief"])
+            td.set((name, "stoch"), states["stoch"])
+        return self.finish(TensorDict({
+            "loss_distillation": wb * belief + wp * prior + wq * posterior,
+            "belief_mse": belief.detach(), "prior_kl": prior.detach(),
+            "posterior_kl": posterior.detach()}, []))

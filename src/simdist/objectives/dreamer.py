@@ -1,0 +1,179 @@
+"""Dreamer objectives for the TWIST teacher: world model (ELBO) and actor-critic in imagination.
+
+Why not TorchRL's ``DreamerModelLoss`` / ``DreamerActorLoss`` / ``DreamerValueLoss``: they
+expect Gaussian latents (``prior_mean``/``prior_std`` keys) and imagine through a
+``DreamerEnv`` rollout, one TensorDict per step; our RSSM has categorical latents and
+imagines with tensors. We reuse TorchRL's TD(lambda) estimator and ``hold_out_net``.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
+from torchrl.objectives.utils import hold_out_net
+from torchrl.objectives.value.functional import td_lambda_return_estimate
+
+from simdist.modules.heads import pixels_to_target
+from simdist.modules.rssm import RSSMState
+from simdist.modules.world_model import DreamerWorldModel
+from simdist.objectives.common import SimdistLoss, sequence_batch
+
+
+def balanced_kl(rssm, post_logits, prior_logits, balance: float, free_nats: float):
+    """DreamerV2 KL balancing with per-step free nats.
+
+    ``balance * max(KL[sg(q) || p], free) + (1 - balance) * max(KL[q || sg(p)], free)``:
+    the prior moves towards the posterior faster than the posterior towards the prior.
+    """
+    to_prior = rssm.kl(post_logits.detach(), prior_logits).clamp_min(free_nats)
+    to_post = rssm.kl(post_logits, prior_logits.detach()).clamp_min(free_nats)
+    return balance * to_prior + (1 - balance) * to_post
+
+
+class DreamerWorldModelLoss(SimdistLoss):
+    """``-ln p(x|h,z) - ln p(r|h,z) + beta * KL[q(z|h,x) || p(z|h)]`` (TWIST Sec. III-B).
+
+    Reconstruction and reward are unit-variance Gaussians (squared error / 2, summed over
+    the observation's dimensions); KL uses DreamerV2 balancing and free nats. Posterior
+    states are written back into the input TensorDict (detached) under
+    ``("posterior", "belief")`` / ``("posterior", "stoch")`` for the actor-critic loss.
+
+    Examples:
+        >>> wm = DreamerWorldModel.teacher(state_dim=3, action_dim=1, size="tiny")
+        >>> td = TensorDict({"action": torch.zeros(2, 4, 1),
+        ...                  "is_init": torch.zeros(2, 4, 1, dtype=torch.bool),
+        ...                  "next": {"state": torch.zeros(2, 4, 3), "reward": torch.zeros(2, 4, 1)}},
+        ...                 [2, 4])
+        >>> sorted(k for k in DreamerWorldModelLoss(wm)(td).keys() if k.startswith("loss"))
+        ['loss_kl', 'loss_reconstruction', 'loss_reward']
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        observation: NestedKey = ("next", "state")
+        action: NestedKey = "action"
+        reward: NestedKey = ("next", "reward")
+        terminated: NestedKey = ("next", "terminated")
+        is_init: NestedKey = "is_init"
+
+    default_keys = _AcceptedKeys
+
+    def __init__(self, world_model: DreamerWorldModel, kl_scale: float = 1.0,
+                 kl_balance: float = 0.8, free_nats: float = 1.0, reward_scale: float = 1.0,
+                 reconstruction_scale: float = 1.0, continue_scale: float = 1.0,
+                 check_inputs: bool = True):
+        super().__init__(check_inputs)
+        if world_model.decoder is None or world_model.reward_head is None:
+            raise ValueError("DreamerWorldModelLoss needs a world model with decoder and "
+                             "reward head (e.g. DreamerWorldModel.teacher(...))")
+        self.world_model = world_model
+        self.kl_scale, self.kl_balance, self.free_nats = kl_scale, kl_balance, free_nats
+        self.reward_scale, self.reconstruction_scale = reward_scale, reconstruction_scale
+        self.continue_scale = continue_scale
+
+    def trainable_parameters(self):
+        return list(self.world_model.parameters())
+
+    def forward(self, td: TensorDictBase) -> TensorDict:
+        B, T = sequence_batch(td)
+        obs = self.read(td, "observation")
+        out = self.world_model.observe(obs, self.read(td, "action"),
+                                       self.read_flag(td, "is_init", (B, T)))
+        features = DreamerWorldModel.features(out)
+        prediction = self.world_model.decode(features)
+        target = pixels_to_target(obs) if obs.dtype == torch.uint8 else obs
+        event_dims = tuple(range(2, target.dim()))
+        recon = 0.5 * (prediction - target).pow(2).sum(event_dims).mean()
+        reward = 0.5 * (self.world_model.reward(features) - self.read(td, "reward")).pow(2).mean()
+        rssm = self.world_model.rssm
+        kl = balanced_kl(rssm, out["posterior_logits"], out["prior_logits"], self.kl_balance,
+                         self.free_nats).mean()
+        losses = {"loss_reconstruction": self.reconstruction_scale * recon,
+                  "loss_reward": self.reward_scale * reward,
+                  "loss_kl": self.kl_scale * kl}
+        if self.world_model.continue_head is not None:
+            cont = 1.0 - self.read(td, "terminated").float()
+            logit = self.world_model.continue_head(features)
+            losses["loss_continue"] = self.continue_scale * torch.nn.functional.\
+                binary_cross_entropy_with_logits(logit, cont.reshape(logit.shape))
+        td.set(("posterior", "belief"), out["belief"].detach())
+        td.set(("posterior", "stoch"), out["stoch"].detach())
+        diag = {"kl": rssm.kl(out["posterior_logits"], out["prior_logits"]).mean().detach()}
+        return self.finish(TensorDict({**losses, **diag}, []))
+
+
+class DreamerActorCriticLoss(SimdistLoss):
+    """Actor and critic trained in imagination from posterior states (DreamerV2).
+
+    From every posterior state of the batch the actor imagines ``horizon`` steps through
+    the frozen world model; lambda-returns (TorchRL's ``td_lambda_return_estimate``) of
+    predicted rewards bootstrapped with a slow target critic give the actor's objective
+    (dynamics backpropagation, plus an entropy bonus) and the critic's regression target.
+    The world model is held out: it receives no gradient.
+
+    Args:
+        world_model: a model with a reward head (the teacher).
+        actor: :class:`~simdist.modules.Actor`.
+        critic: value head on model features.
+        horizon, gamma, lmbda: imagination length, discount, lambda.
+        entropy_coeff: weight of the actor's entropy bonus.
+        target_tau: Polyak rate of :meth:`update_target`.
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        belief: NestedKey = ("posterior", "belief")
+        stoch: NestedKey = ("posterior", "stoch")
+
+    default_keys = _AcceptedKeys
+
+    def __init__(self, world_model: DreamerWorldModel, actor, critic, horizon: int = 15,
+                 gamma: float = 0.99, lmbda: float = 0.95, entropy_coeff: float = 3e-4,
+                 target_tau: float = 0.02, check_inputs: bool = True):
+        super().__init__(check_inputs)
+        if horizon < 1:
+            raise ValueError(f"horizon must be >= 1, got {horizon}")
+        self.world_model, self.actor, self.critic = world_model, actor, critic
+        self.target_critic = copy.deepcopy(critic).requires_grad_(False)
+        self.horizon, self.gamma, self.lmbda = horizon, gamma, lmbda
+        self.entropy_coeff, self.target_tau = entropy_coeff, target_tau
+
+    def trainable_parameters(self):
+        return list(self.actor.parameters()) + list(self.critic.parameters())
+
+    @torch.no_grad()
+    def update_target(self) -> None:
+        """Polyak-averages the critic into the target critic."""
+        for target, source in zip(self.target_critic.parameters(), self.critic.parameters()):
+            target.lerp_(source, self.target_tau)
+
+    def forward(self, td: TensorDictBase) -> TensorDict:
+        belief, stoch = self.read(td, "belief"), self.read(td, "stoch")
+        state = RSSMState(belief.detach().flatten(0, -2), stoch.detach().flatten(0, -2))
+        rssm = self.world_model.rssm
+        features, log_probs = [state.features()], []
+        with hold_out_net(self.world_model):
+            for _ in range(self.horizon):
+                dist = self.actor.distribution(features[-1])
+                action = dist.rsample()
+                log_probs.append(dist.log_prob(action))
+                belief_, logits = rssm.prior_step(state, action)
+                state = RSSMState(belief_, rssm.sample(logits))
+                features.append(state.features())
+            feats = torch.stack(features, 1)                       # [N, H+1, F]
+            reward = self.world_model.reward(feats[:, 1:])          # [N, H, 1]
+            next_value = self.target_critic(feats[:, 1:])           # [N, H, 1]
+        done = torch.zeros_like(reward, dtype=torch.bool)
+        returns = td_lambda_return_estimate(self.gamma, self.lmbda, next_value, reward, done)
+        entropy = -torch.stack(log_probs, 1).mean()
+        loss_actor = -returns.mean() - self.entropy_coeff * entropy
+        value = self.critic(feats[:, :-1].detach())
+        loss_critic = 0.5 * (value - returns.detach()).pow(2).mean()
+        return self.finish(TensorDict({
+            "loss_actor": loss_actor, "loss_critic": loss_critic,
+            "imagined_reward": reward.mean().detach(), "entropy": entropy.detach(),
+            "lambda_return": returns.mean().detach()}, []))

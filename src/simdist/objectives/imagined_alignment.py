@@ -1,0 +1,97 @@
+"""TWIST imagined-rollout alignment (arXiv 2311.03622, Eq. 4 and Algorithm 1)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
+
+from simdist.modules.rssm import RSSMState
+from simdist.modules.world_model import DreamerWorldModel
+from simdist.objectives.common import SimdistLoss, sequence_batch
+from simdist.objectives.distillation import check_compatible
+
+
+class ImaginedAlignmentLoss(SimdistLoss):
+    """``sum_i ||h_i^T - h_i^S||^2 + KL[p_S(z_i|h_i^S) || p_T(z_i|h_i^T)]`` over imagined steps.
+
+    From the posterior states of a slice, the frozen teacher imagines ``horizon`` steps
+    choosing actions with its actor plus Gaussian noise (``action_noise_std``); the
+    student replays **exactly those actions** from its own posterior states of the same
+    steps. Both share the sampling noise. Posterior states are read from
+    ``("teacher"|"student", "belief"|"stoch")`` when :class:`TwistDistillationLoss`
+    already wrote them (the student's still carry gradient), otherwise filtered here.
+
+    Args:
+        teacher, student: world models with matching RSSM sizes.
+        teacher_actor: maps teacher features to actions in [-1, 1] (e.g. ``Actor``'s
+            deterministic mode).
+        horizon: imagined steps (TWIST: 15).
+        action_noise_std: exploration noise on the teacher's actions (TWIST ablation: 0).
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        teacher_observation: NestedKey = ("next", "state")
+        student_observation: NestedKey = ("next", "pixels")
+        action: NestedKey = "action"
+        is_init: NestedKey = "is_init"
+
+    default_keys = _AcceptedKeys
+
+    def __init__(self, teacher: DreamerWorldModel, student: DreamerWorldModel, teacher_actor,
+                 horizon: int = 15, action_noise_std: float = 0.3, belief_weight: float = 1.0,
+                 prior_weight: float = 1.0, max_starts: int | None = None,
+                 check_inputs: bool = True):
+        super().__init__(check_inputs)
+        check_compatible(teacher, student)
+        if horizon < 1 or action_noise_std < 0:
+            raise ValueError("horizon must be >= 1 and action_noise_std >= 0")
+        self.teacher, self.student, self.teacher_actor = teacher, student, teacher_actor
+        self.horizon, self.action_noise_std = horizon, action_noise_std
+        self.weights, self.max_starts = (belief_weight, prior_weight), max_starts
+
+    def trainable_parameters(self):
+        return list(self.student.parameters())
+
+    def _posteriors(self, td, B, T):
+        if ("student", "belief") in td.keys(True):
+            return (RSSMState(td.get(("teacher", "belief")), td.get(("teacher", "stoch"))),
+                    RSSMState(td.get(("student", "belief")), td.get(("student", "stoch"))))
+        action = self.read(td, "action")
+        is_init = self.read_flag(td, "is_init", (B, T))
+        rssm = self.student.rssm
+        noise = torch.rand(B, T, rssm.stoch, rssm.classes, device=action.device)
+        with torch.no_grad():
+            t = self.teacher.observe(self.read(td, "teacher_observation"), action, is_init,
+                                     noise=noise)
+        s = self.student.observe(self.read(td, "student_observation"), action, is_init,
+                                 noise=noise)
+        return RSSMState(t["belief"], t["stoch"]), RSSMState(s["belief"], s["stoch"])
+
+    def forward(self, td: TensorDictBase) -> TensorDict:
+        B, T = sequence_batch(td)
+        teacher_post, student_post = self._posteriors(td, B, T)
+        flat = lambda x: x.reshape(B * T, -1)  # noqa: E731
+        t_state = RSSMState(flat(teacher_post.belief).detach(), flat(teacher_post.stoch).detach())
+        s_state = RSSMState(flat(student_post.belief), flat(student_post.stoch))
+        if self.max_starts and B * T > self.max_starts:
+            index = torch.randperm(B * T, device=t_state.belief.device)[:self.max_starts]
+            t_state = RSSMState(t_state.belief[index], t_state.stoch[index])
+            s_state = RSSMState(s_state.belief[index], s_state.stoch[index])
+        rssm = self.student.rssm
+        noise = torch.rand(t_state.belief.shape[0], self.horizon, rssm.stoch, rssm.classes,
+                           device=t_state.belief.device)
+        with torch.no_grad():
+            teacher = self.teacher.imagine_with_policy(
+                t_state, self.teacher_actor, self.horizon,
+                action_noise_std=self.action_noise_std, noise=noise)
+        student = self.student.imagine(s_state, teacher["action"], noise=noise)
+        belief = (teacher["belief"] - student["belief"]).pow(2).sum(-1).mean()
+        prior = rssm.kl(student["prior_logits"], teacher["prior_logits"]).mean()
+        wb, wp = self.weights
+        return self.finish(TensorDict({
+            "loss_imagined": wb * belief + wp * prior,
+            "imagined_belief_mse": belief.detach(), "imagined_prior_kl": prior.detach()}, []))

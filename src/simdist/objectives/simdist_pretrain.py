@@ -1,0 +1,171 @@
+"""SimDist world-model pretraining and dynamics-only finetuning (METHODS.md Sec. 1.3, 1.5)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
+
+from simdist.modules.simdist_model import SimDistWorldModel
+from simdist.objectives.common import SimdistLoss, sequence_batch
+
+
+def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: torch.Tensor,
+                    is_init: torch.Tensor, horizon: int):
+    """Predicts ``horizon`` latents from every start of ``[B, T]`` slices in parallel.
+
+    Returns ``(predicted [B, S, H, L], targets [B, S, H, L], mask [B, S, H], starts)`` with
+    ``S = T - horizon`` starts; ``mask`` drops targets on or after an episode start
+    (the rollout would cross the boundary).
+    """
+    B, T, L = latents.shape
+    S = T - horizon
+    if S < 1:
+        raise ValueError(f"slices of length {T} are too short for horizon {horizon}: "
+                         f"need at least {horizon + 1} steps")
+    windows = actions.unfold(1, horizon, 1)[:, :S].transpose(-1, -2)        # [B, S, H, A]
+    predicted = model.rollout(latents[:, :S], windows)                       # [B, S, H, L]
+    targets = latents.unfold(1, horizon, 1)[:, 1:S + 1].transpose(-1, -2)   # [B, S, H, L]
+    crosses = is_init.unfold(1, horizon, 1)[:, 1:S + 1]                     # [B, S, H]
+    mask = torch.cumprod((~crosses).to(latents.dtype), -1)
+    return predicted, targets, mask
+
+
+def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    return (values * mask).sum() / mask.sum().clamp_min(1.0)
+
+
+class SimDistPretrainLoss(SimdistLoss):
+    """Latent consistency + reward + value (+ BC) regression; no reconstruction.
+
+    For every start ``t`` of a ``[B, T]`` slice: ``z_t = enc(o_{t-k+1..t})``, predicted
+    ``z^_{t+i} = dyn(z^_{t+i-1}, a_{t+i-1})`` for ``i = 1..H``;
+
+    - ``loss_consistency = mean_i ||z^_{t+i} - sg(enc(o_{t+i}))||^2`` (same encoder, no EMA);
+    - ``loss_reward = mean_i (r(z^_{t+i}, a_{t+i}) - r_{t+i})^2`` for ``i = 0..H-1``
+      (``z^_t = z_t``) on recorded rewards, so rewards are right on predicted latents;
+    - ``loss_value = mean_i (V(z^_{t+i}) - v_{t+i})^2`` on the expert critic's labels
+      (plain regression, no bootstrapping);
+    - ``loss_bc = mean_t ||pi(z_t) - a_t||^2`` on steps where the expert acted.
+
+    Targets after an episode start inside the horizon are masked out. Reference weights:
+    latent 1, reward 1, value 1, action 4.
+
+    Examples:
+        >>> wm = SimDistWorldModel.build(obs_dim=6, action_dim=2, size="tiny")
+        >>> td = TensorDict({"observation": torch.randn(3, 8, 6), "action": torch.rand(3, 8, 2),
+        ...     "is_init": torch.zeros(3, 8, 1, dtype=torch.bool), "value_target": torch.randn(3, 8, 1),
+        ...     "expert_active": torch.ones(3, 8, 1, dtype=torch.bool),
+        ...     "next": {"reward": torch.randn(3, 8, 1)}}, [3, 8])
+        >>> out = SimDistPretrainLoss(wm, horizon=3)(td)
+        >>> sorted(k for k in out.keys() if k.startswith("loss"))
+        ['loss_bc', 'loss_consistency', 'loss_reward', 'loss_value']
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        reward: NestedKey = ("next", "reward")
+        value_target: NestedKey = "value_target"
+        expert_active: NestedKey = "expert_active"
+        is_init: NestedKey = "is_init"
+
+    default_keys = _AcceptedKeys
+
+    def __init__(self, world_model: SimDistWorldModel, horizon: int = 5,
+                 consistency_weight: float = 1.0, reward_weight: float = 1.0,
+                 value_weight: float = 1.0, bc_weight: float = 4.0, check_inputs: bool = True):
+        super().__init__(check_inputs)
+        if horizon < 1:
+            raise ValueError(f"horizon must be >= 1, got {horizon}")
+        self.world_model, self.horizon = world_model, horizon
+        self.weights = dict(consistency=consistency_weight, reward=reward_weight,
+                            value=value_weight, bc=bc_weight)
+
+    def trainable_parameters(self):
+        return list(self.world_model.parameters())
+
+    def forward(self, td: TensorDictBase) -> TensorDict:
+        B, T = sequence_batch(td)
+        H, wm = self.horizon, self.world_model
+        is_init = self.read_flag(td, "is_init", (B, T))
+        action = self.read(td, "action")
+        latents = wm.encode_sequence(self.read(td, "observation"), is_init)
+        predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
+        S = T - H
+        consistency = masked_mean((predicted - targets.detach()).pow(2).mean(-1), mask)
+        # Reward and value on z^_{t+i}, i = 0..H-1: the start latent then the predictions.
+        path = torch.cat([latents[:, :S, None], predicted[:, :, :-1]], 2)      # [B, S, H, L]
+        path_mask = torch.cat([torch.ones_like(mask[..., :1]), mask[..., :-1]], -1)
+        act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)
+        reward_t = self.read(td, "reward").unfold(1, H, 1)[:, :S].transpose(-1, -2)
+        value_t = self.read(td, "value_target").unfold(1, H, 1)[:, :S].transpose(-1, -2)
+        reward = masked_mean((wm.reward(path, act) - reward_t).pow(2).squeeze(-1), path_mask)
+        value = masked_mean((wm.value(path) - value_t).pow(2).squeeze(-1), path_mask)
+        expert = self.read_flag(td, "expert_active", (B, T)).to(latents.dtype)
+        bc = masked_mean((wm.policy(latents) - action).pow(2).mean(-1), expert)
+        w = self.weights
+        return self.finish(TensorDict({
+            "loss_consistency": w["consistency"] * consistency,
+            "loss_reward": w["reward"] * reward,
+            "loss_value": w["value"] * value,
+            "loss_bc": w["bc"] * bc,
+            "latent_std": latents.std(0).mean().detach(),
+        }, []))
+
+
+class DynamicsFinetuneLoss(SimdistLoss):
+    """SimDist finetuning: latent consistency on target data, training **only** dynamics.
+
+    The encoder runs under ``torch.no_grad`` and no head is evaluated, so encoder, reward,
+    value and policy parameters can never receive a gradient; :meth:`trainable_parameters`
+    is the dynamics' parameters alone. Diagnostics report the frozen heads' reward error
+    on the predicted latents (without gradient).
+
+    Examples:
+        >>> wm = SimDistWorldModel.build(obs_dim=6, action_dim=2, size="tiny")
+        >>> loss = DynamicsFinetuneLoss(wm, horizon=3)
+        >>> {id(p) for p in loss.trainable_parameters()} == {id(p) for p in wm.dynamics.parameters()}
+        True
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        reward: NestedKey = ("next", "reward")
+        is_init: NestedKey = "is_init"
+
+    default_keys = _AcceptedKeys
+
+    def __init__(self, world_model: SimDistWorldModel, horizon: int = 5,
+                 check_inputs: bool = True):
+        super().__init__(check_inputs)
+        if horizon < 1:
+            raise ValueError(f"horizon must be >= 1, got {horizon}")
+        self.world_model, self.horizon = world_model, horizon
+
+    def trainable_parameters(self):
+        return list(self.world_model.dynamics.parameters())
+
+    def forward(self, td: TensorDictBase) -> TensorDict:
+        B, T = sequence_batch(td)
+        wm, H = self.world_model, self.horizon
+        is_init = self.read_flag(td, "is_init", (B, T))
+        action = self.read(td, "action")
+        with torch.no_grad():  # frozen by construction: the encoder builds no graph
+            latents = wm.encode_sequence(self.read(td, "observation"), is_init)
+        predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
+        consistency = masked_mean((predicted - targets).pow(2).mean(-1), mask)
+        with torch.no_grad():
+            S = T - H
+            act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
+            reward_t = self.read(td, "reward").unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
+            reward_err = masked_mean(
+                (wm.reward(predicted[:, :, :-1], act) - reward_t).pow(2).squeeze(-1),
+                mask[..., :-1]) if H > 1 else torch.zeros(())
+        return self.finish(TensorDict({"loss_consistency": consistency,
+                                       "reward_error_on_predictions": reward_err}, []))
