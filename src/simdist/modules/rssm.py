@@ -91,7 +91,7 @@ class RSSM(nn.Module):
         index = (log_p + gumbel).argmax(-1)
         one_hot = torch.nn.functional.one_hot(index, self.classes).to(log_p.dtype)
         probs = log_p.exp()
-        return (one_hot + probs - probs.detach()).flatten(-2)
+        return (one_hot + (probs - probs.detach())).flatten(-2)  # exact one-hot forward
 
     def kl(self, logits_p: torch.Tensor, logits_q: torch.Tensor) -> torch.Tensor:
         """``KL[p || q]`` summed over the categorical variables, ``[...]``."""

@@ -8,6 +8,13 @@ from torch import nn
 from torchrl.objectives import LossModule
 
 
+class MissingKeyError(KeyError):
+    """A required TensorDict key is absent (message printed unquoted, unlike KeyError)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
 class SimdistLoss(LossModule):
     """A TorchRL ``LossModule`` that names what it trains and checks its inputs.
 
@@ -34,7 +41,7 @@ class SimdistLoss(LossModule):
         value = td.get(key, None)
         if value is None:
             hint = " (add torchrl.envs.InitTracker() to the env)" if name == "is_init" else ""
-            raise KeyError(f"{type(self).__name__}: input has no {key!r} for {name!r}{hint}; "
+            raise MissingKeyError(f"{type(self).__name__}: input has no {key!r} for {name!r}{hint}; "
                            f"remap with set_keys({name}=...). Present keys: "
                            f"{sorted(map(str, td.keys(True, True)))}")
         if self.check_inputs and value.is_floating_point() and not torch.isfinite(value).all():

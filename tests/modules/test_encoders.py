@@ -1,0 +1,43 @@
+import pytest
+import torch
+
+from simdist.modules import HistoryEncoder, PixelEncoder, StateEncoder, simnorm
+
+
+def test_history_windows_clamp_to_episode_start():
+    enc = HistoryEncoder(obs_dim=1, history=3, latent_dim=8, hidden=8)
+    obs = torch.arange(8.0).reshape(1, 8, 1)
+    is_init = torch.zeros(1, 8, dtype=torch.bool)
+    is_init[0, 5] = True
+    windows = enc.windows(obs, is_init)[0, :, :, 0]
+    expected = torch.tensor([[0, 0, 0], [0, 0, 1], [0, 1, 2], [1, 2, 3], [2, 3, 4],
+                             [5, 5, 5], [5, 5, 6], [5, 6, 7]], dtype=torch.float32)
+    assert torch.equal(windows, expected)
+
+
+def test_simnorm_groups_are_distributions():
+    z = simnorm(torch.randn(3, 16), groups=4).reshape(3, 4, 4)
+    torch.testing.assert_close(z.sum(-1), torch.ones(3, 4))
+    assert (z >= 0).all()
+
+
+def test_encoders_reject_wrong_shapes_and_nan():
+    with pytest.raises(ValueError, match="'pixels' must end with shape \\(64, 64, 3\\)"):
+        PixelEncoder(depth=4)(torch.zeros(2, 32, 32, 3, dtype=torch.uint8))
+    with pytest.raises(ValueError, match="'state' must end with shape \\(5,\\)"):
+        StateEncoder(5, 8, 8)(torch.zeros(2, 4))
+    enc = HistoryEncoder(obs_dim=2, history=2, latent_dim=8, hidden=8)
+    bad = torch.zeros(1, 3, 2)
+    bad[0, 1, 0] = float("nan")
+    with pytest.raises(ValueError, match="'observation' contains 1 non-finite"):
+        enc.encode_sequence(bad, torch.zeros(1, 3, dtype=torch.bool))
+    with pytest.raises(ValueError, match="not divisible"):
+        HistoryEncoder(obs_dim=2, latent_dim=10, simnorm_groups=4)
+
+
+def test_pixel_encoder_handles_leading_dims_and_uint8_scaling():
+    enc = PixelEncoder(depth=4)
+    x = torch.randint(0, 256, (2, 3, 64, 64, 3), dtype=torch.uint8)
+    out = enc(x)
+    assert out.shape == (2, 3, enc.embed_dim)
+    torch.testing.assert_close(out[1, 2], enc(x[1, 2][None])[0])

@@ -1,0 +1,121 @@
+import copy
+
+import pytest
+import torch
+from torch.distributions import Independent, OneHotCategorical, kl_divergence
+
+from simdist.modules import Actor, DreamerWorldModel, ScalarHead
+from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss, balanced_kl
+from tests.synthetic import linear_system_batch
+
+
+def _teacher(seed=0):
+    torch.manual_seed(seed)
+    return DreamerWorldModel.teacher(state_dim=4, action_dim=2, size="tiny")
+
+
+def test_balanced_kl_matches_torch_distributions_with_free_nats():
+    rssm = _teacher().rssm
+    post, prior = torch.randn(6, 4, 4), torch.randn(6, 4, 4)
+    dist = lambda l: Independent(OneHotCategorical(probs=rssm.log_probs(l).exp()), 1)  # noqa: E731
+    kl = kl_divergence(dist(post), dist(prior))
+    for free in (0.0, 0.5, 100.0):
+        expected = 0.8 * kl.clamp_min(free) + 0.2 * kl.clamp_min(free)
+        torch.testing.assert_close(balanced_kl(rssm, post, prior, 0.8, free), expected)
+    # balancing splits gradients: 0.8 of the gradient goes to the prior
+    post.requires_grad_(True)
+    prior.requires_grad_(True)
+    balanced_kl(rssm, post, prior, 0.8, 0.0).sum().backward()
+    post_grad, prior_grad = post.grad.clone(), prior.grad.clone()
+    post.grad = prior.grad = None
+    rssm.kl(post, prior).sum().backward()
+    torch.testing.assert_close(post_grad, 0.2 * post.grad)
+    torch.testing.assert_close(prior_grad, 0.8 * prior.grad)
+
+
+def test_world_model_loss_equals_hand_computation():
+    wm = _teacher()
+    td = linear_system_batch(batch=3, time=5, obs_dim=4)
+    loss = DreamerWorldModelLoss(wm, kl_scale=0.5, free_nats=0.0, reward_scale=2.0)
+    torch.manual_seed(1)
+    out = loss(td.clone())
+    torch.manual_seed(1)  # same sampling noise in the manual pass
+    states = wm.observe(td["next", "state"], td["action"], td["is_init"].squeeze(-1))
+    feats = DreamerWorldModel.features(states)
+    recon = 0.5 * ((wm.decode(feats) - td["next", "state"]) ** 2).sum(-1).mean()
+    reward = 0.5 * ((wm.reward(feats) - td["next", "reward"]) ** 2).mean()
+    kl = wm.rssm.kl(states["posterior_logits"], states["prior_logits"]).mean()
+    torch.testing.assert_close(out["loss_reconstruction"], recon)
+    torch.testing.assert_close(out["loss_reward"], 2.0 * reward)
+    torch.testing.assert_close(out["loss_kl"], 0.5 * kl)
+
+
+def test_world_model_loss_learns_a_linear_system():
+    wm = _teacher()
+    loss = DreamerWorldModelLoss(wm)
+    opt = torch.optim.Adam(loss.trainable_parameters(), lr=3e-3)
+    td = linear_system_batch(batch=32, time=10, obs_dim=4)
+    def total():
+        out = loss(td.clone())
+        return out["loss_reconstruction"] + out["loss_reward"], out
+    first = total()[0].item()
+    for _ in range(300):
+        value, out = total()
+        opt.zero_grad()
+        (value + out["loss_kl"]).backward()
+        opt.step()
+    assert total()[0].item() < first / 4, (first, total()[0].item())
+
+
+def test_actor_critic_never_touches_the_world_model():
+    wm = _teacher()
+    actor = Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2)
+    critic = ScalarHead(wm.rssm.feature_dim, 16)
+    loss = DreamerActorCriticLoss(wm, actor, critic, horizon=4)
+    td = linear_system_batch(batch=4, time=5, obs_dim=4)
+    DreamerWorldModelLoss(wm)(td)  # writes ("posterior", ...)
+    before = copy.deepcopy(wm.state_dict())
+    opt = torch.optim.Adam(loss.parameters(), lr=1e-2)  # deliberately everything
+    for _ in range(3):
+        out = loss(td)
+        opt.zero_grad()
+        (out["loss_actor"] + out["loss_critic"]).backward()
+        assert all(p.grad is None for p in wm.parameters())
+        assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in actor.parameters())
+        opt.step()
+        loss.update_target()
+    for k, v in wm.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    assert all(p.requires_grad for p in wm.parameters())  # held out only temporarily
+
+
+def test_lambda_return_matches_the_recursion():
+    from torchrl.objectives.value.functional import td_lambda_return_estimate
+    reward, value = torch.randn(2, 5, 1), torch.randn(2, 5, 1)
+    gamma, lmbda = 0.9, 0.7
+    out = td_lambda_return_estimate(gamma, lmbda, value, reward, torch.zeros_like(reward, dtype=torch.bool))
+    expected = torch.zeros_like(reward)
+    nxt = value[:, -1]
+    for t in reversed(range(5)):
+        nxt = reward[:, t] + gamma * ((1 - lmbda) * value[:, t] + lmbda * nxt) if t < 4 \
+            else reward[:, t] + gamma * value[:, t]
+        expected[:, t] = nxt
+    torch.testing.assert_close(out, expected)
+
+
+def test_bad_inputs_name_the_key():
+    wm = _teacher()
+    loss = DreamerWorldModelLoss(wm)
+    td = linear_system_batch(batch=2, time=4, obs_dim=4)
+    with pytest.raises(KeyError, match="no 'is_init'.*InitTracker"):
+        loss(td.exclude("is_init"))
+    bad = td.clone()
+    bad["next", "reward"][0, 1] = float("nan")
+    with pytest.raises(ValueError, match="'next', 'reward'.*NaN"):
+        loss(bad)
+    with pytest.raises(ValueError, match="\\[batch, time\\]"):
+        loss(td[:, 0])
+    loss.set_keys(observation=("next", "observation"))
+    loss(td)  # remapped key works
+    with pytest.raises(ValueError, match="not an accepted tensordict key"):
+        loss.set_keys(pixels="x")

@@ -1,0 +1,125 @@
+import copy
+
+import pytest
+import torch
+
+from simdist.modules import SimDistWorldModel, StateDecoder
+from simdist.objectives import DynamicsFinetuneLoss, ProbeLoss, SimDistPretrainLoss
+from simdist.objectives.simdist_pretrain import rollout_windows
+from tests.synthetic import linear_system_batch
+
+
+def _model(seed=0):
+    torch.manual_seed(seed)
+    return SimDistWorldModel.build(obs_dim=4, action_dim=2, size="tiny")
+
+
+def test_pretrain_terms_equal_hand_computation():
+    wm = _model()
+    td = linear_system_batch(batch=2, time=5, obs_dim=4)
+    td["expert_active"][:, 1] = False
+    out = SimDistPretrainLoss(wm, horizon=2, bc_weight=4.0)(td)
+    obs, act = td["observation"], td["action"]
+    is_init = td["is_init"].squeeze(-1)
+    z = wm.encode_sequence(obs, is_init)
+    cons, rew, val = [], [], []
+    for t in range(3):  # starts 0..T-H-1
+        zi = z[:, t]
+        rew.append((wm.reward(zi, act[:, t]) - td["next", "reward"][:, t]) ** 2)
+        val.append((wm.value(zi) - td["value_target"][:, t]) ** 2)
+        for i in range(2):
+            zi = wm.next(zi, act[:, t + i])
+            cons.append(((zi - z[:, t + i + 1]) ** 2).mean(-1))
+            if i < 1:
+                rew.append((wm.reward(zi, act[:, t + i + 1]) - td["next", "reward"][:, t + i + 1]) ** 2)
+                val.append((wm.value(zi) - td["value_target"][:, t + i + 1]) ** 2)
+    expert = td["expert_active"].squeeze(-1)
+    bc = ((wm.policy(z) - act) ** 2).mean(-1)[expert].mean()
+    torch.testing.assert_close(out["loss_consistency"], torch.stack(cons).mean())
+    torch.testing.assert_close(out["loss_reward"], torch.stack(rew).mean())
+    torch.testing.assert_close(out["loss_value"], torch.stack(val).mean())
+    torch.testing.assert_close(out["loss_bc"], 4.0 * bc)
+
+
+def test_rollouts_never_target_across_an_episode_start():
+    wm = _model()
+    td = linear_system_batch(batch=1, time=6, obs_dim=4, boundary=3)
+    is_init = td["is_init"].squeeze(-1)
+    z = wm.encode_sequence(td["observation"], is_init)
+    _, _, mask = rollout_windows(wm, z, td["action"], is_init, horizon=2)
+    # starts 0..3; targets are steps t+1, t+2; step 3 starts a new episode
+    expected = torch.tensor([[1, 1], [1, 0], [0, 0], [1, 1]], dtype=torch.float32)
+    assert torch.equal(mask[0], expected)
+    with pytest.raises(ValueError, match="too short for horizon 6"):
+        rollout_windows(wm, z, td["action"], is_init, horizon=6)
+
+
+def test_pretraining_learns_a_linear_system():
+    wm = _model()
+    loss = SimDistPretrainLoss(wm, horizon=3)
+    opt = torch.optim.Adam(loss.trainable_parameters(), lr=3e-3)
+    td = linear_system_batch(batch=32, time=10, obs_dim=4)
+    terms = ("loss_reward", "loss_value", "loss_bc")
+    first = {k: v.item() for k, v in loss(td).items() if k in terms}
+    for _ in range(300):
+        out = loss(td)
+        total = sum(out[k] for k in out.keys() if k.startswith("loss"))
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+    last = {k: v.item() for k, v in loss(td).items() if k in terms}
+    for k in terms:  # each supervised term falls at least 3x
+        assert last[k] < first[k] / 3, (k, first[k], last[k])
+    assert loss(td)["latent_std"] > 1e-3  # the latent did not collapse
+
+
+def test_finetuning_changes_only_the_dynamics():
+    wm = _model()
+    loss = DynamicsFinetuneLoss(wm, horizon=3)
+    frozen = {name: copy.deepcopy(part.state_dict()) for name, part in wm.parts().items()
+              if name != "dynamics"}
+    dynamics_before = copy.deepcopy(wm.dynamics.state_dict())
+    opt = torch.optim.Adam(wm.parameters(), lr=1e-2)  # deliberately every parameter
+    td = linear_system_batch(batch=8, time=8, obs_dim=4, seed=3)
+    first = loss(td)["loss_consistency"].item()
+    for _ in range(100):
+        out = loss(td)
+        opt.zero_grad()
+        out["loss_consistency"].backward()
+        for name, part in wm.parts().items():
+            if name != "dynamics":
+                assert all(p.grad is None for p in part.parameters()), name
+        opt.step()
+    for name, state in frozen.items():
+        for k, v in getattr(wm, name).state_dict().items():
+            assert torch.equal(v, state[k]), (name, k)
+    assert any(not torch.equal(v, dynamics_before[k]) for k, v in wm.dynamics.state_dict().items())
+    assert loss(td)["loss_consistency"].item() < first / 2
+
+
+def test_probe_trains_only_the_probe():
+    wm = _model()
+    probe = StateDecoder(wm.latent_dim, 4, hidden=16, layers=2)
+    loss = ProbeLoss(wm.encode_sequence, probe)
+    before = copy.deepcopy(wm.state_dict())
+    assert {id(p) for p in loss.parameters()} == {id(p) for p in probe.parameters()}
+    opt = torch.optim.Adam(probe.parameters(), lr=1e-2)
+    td = linear_system_batch(batch=16, time=6, obs_dim=4)
+    first = loss(td)["loss_probe"].item()
+    for _ in range(150):
+        out = loss(td)
+        opt.zero_grad()
+        out["loss_probe"].backward()
+        assert all(p.grad is None for p in wm.parameters())
+        opt.step()
+    assert loss(td)["loss_probe"].item() < first / 2
+    assert all(torch.equal(v, before[k]) for k, v in wm.state_dict().items())
+
+
+def test_non_finite_loss_is_an_error():
+    wm = _model()
+    loss = SimDistPretrainLoss(wm, horizon=2, check_inputs=False)
+    td = linear_system_batch(batch=2, time=5, obs_dim=4)
+    td["value_target"][0, 0] = float("inf")
+    with pytest.raises(FloatingPointError, match="loss_value"):
+        loss(td)
