@@ -119,3 +119,20 @@ def test_bad_inputs_name_the_key():
     loss(td)  # remapped key works
     with pytest.raises(ValueError, match="not an accepted tensordict key"):
         loss.set_keys(pixels="x")
+
+
+def test_pixel_dreamer_reconstruction_uses_normalised_uint8_pixels():
+    torch.manual_seed(0)
+    wm = DreamerWorldModel.pixel_dreamer(action_dim=2, size="tiny")
+    td = linear_system_batch(batch=2, time=3, obs_dim=4)
+    td["next", "pixels"] = torch.randint(0, 256, (2, 3, 64, 64, 3), dtype=torch.uint8)
+    loss = DreamerWorldModelLoss(wm)
+    loss.set_keys(observation=("next", "pixels"))
+    torch.manual_seed(1)
+    out = loss(td)
+    torch.manual_seed(1)
+    states = wm.observe(td["next", "pixels"], td["action"], td["is_init"].squeeze(-1))
+    target = td["next", "pixels"].float() / 255 - 0.5
+    prediction = wm.decode(DreamerWorldModel.features(states))
+    expected = 0.5 * (prediction - target).pow(2).sum((-3, -2, -1)).mean()
+    torch.testing.assert_close(out["loss_reconstruction"], expected)

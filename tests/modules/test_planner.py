@@ -1,0 +1,132 @@
+"""The latent MPPI planner on problems whose optimum is known."""
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+
+from simdist.modules import SimDistWorldModel
+from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
+
+
+def _plan(planner, latent, **extra):
+    return planner(TensorDict({"latent": latent, **extra}, [latent.shape[0]]))
+
+
+def test_bandit_horizon_one_finds_each_envs_optimum():
+    best = torch.tensor([[0.7], [-0.3], [0.1]])
+    # latent carries the optimum; reward peaks at a = latent
+    planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -(a - z).pow(2).sum(-1, keepdim=True),
+                                None, action_dim=1, seed=0,
+                                config=PlannerConfig(horizon=1, num_samples=256, num_elites=16,
+                                                     iterations=6, init_std=1.0, max_std=1.0))
+    out = _plan(planner, best.clone())
+    torch.testing.assert_close(out["action"], best, atol=0.03, rtol=0)
+
+
+def test_point_mass_moves_to_target_at_full_speed_then_stops():
+    target = 1.0
+    dynamics = lambda z, a: z + 0.1 * a  # noqa: E731
+    reward = lambda z, a: -(dynamics(z, a) - target).pow(2)  # noqa: E731
+    cfg = PlannerConfig(horizon=12, num_samples=256, num_elites=32, iterations=6)
+    planner = LatentMPPIPlanner(dynamics, reward, None, action_dim=1, config=cfg, seed=0)
+    far = _plan(planner, torch.tensor([[0.0], [2.0]]))
+    assert far["action"][0] > 0.9 and far["action"][1] < -0.9  # bang towards the target
+    planner.reset()
+    z = torch.tensor([[0.0]])
+    for _ in range(25):  # closed loop with warm start
+        z = dynamics(z, _plan(planner, z)["action"])
+    assert abs(z.item() - target) < 0.05
+
+
+def test_terminal_value_is_used():
+    # Zero reward everywhere; only V(z_H) = z_H tells the planner to go up.
+    planner = LatentMPPIPlanner(lambda z, a: z + a, lambda z, a: torch.zeros_like(z), lambda z: z,
+                                action_dim=1, seed=0,
+                                config=PlannerConfig(horizon=3, num_samples=128, num_elites=8))
+    assert (_plan(planner, torch.zeros(4, 1))["action"] > 0.5).all()
+    no_value = LatentMPPIPlanner(lambda z, a: z + a, lambda z, a: torch.zeros_like(z), None,
+                                 action_dim=1, seed=0,
+                                 config=PlannerConfig(horizon=3, num_samples=128, num_elites=8))
+    assert _plan(no_value, torch.zeros(4, 1))["action"].abs().mean() < 0.5
+
+
+def test_warm_start_shifts_the_previous_plan_and_resets_per_env():
+    cfg = PlannerConfig(horizon=4, num_samples=32, num_elites=4, iterations=1)
+    planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -(a - 0.5).pow(2), None, 1, cfg, seed=0)
+    first = _plan(planner, torch.zeros(2, 1))["planner", "mean"].clone()
+    is_init = torch.tensor([[False], [True]])
+    start = planner._initial_mean(torch.zeros(2, 1), is_init)
+    torch.testing.assert_close(start[0, :3], first[0, 1:])
+    assert torch.equal(start[0, 3], torch.zeros(1)) and torch.equal(start[1], torch.zeros(4, 1))
+    no_warm = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -(a - 0.5).pow(2), None, 1,
+                                PlannerConfig(horizon=4, num_samples=32, num_elites=4,
+                                              iterations=1, warm_start=False), seed=0)
+    _plan(no_warm, torch.zeros(2, 1))
+    assert torch.equal(no_warm._initial_mean(torch.zeros(2, 1), None), torch.zeros(2, 4, 1))
+
+
+def test_policy_proposals_find_what_sampling_cannot():
+    # Reward only for actions within 0.01 of 0.9 at every step; sampling is tight around 0.
+    reward = lambda z, a: (((a - 0.9).abs() < 0.01).float() - 0.0).sum(-1, keepdim=True)  # noqa: E731
+    cfg = PlannerConfig(horizon=3, num_samples=100, num_elites=5, iterations=2, init_std=0.05,
+                        min_std=0.01, max_std=0.05, policy_fraction=0.1, policy_noise=0.001)
+    policy = lambda z: torch.full((z.shape[0], 1), 0.9)  # noqa: E731
+    with_policy = LatentMPPIPlanner(lambda z, a: z, reward, None, 1, cfg, policy=policy, seed=0)
+    without = LatentMPPIPlanner(lambda z, a: z, reward, None, 1, cfg, seed=0)
+    assert abs(_plan(with_policy, torch.zeros(1, 1))["action"].item() - 0.9) < 0.01
+    assert abs(_plan(without, torch.zeros(1, 1))["action"].item()) < 0.3
+
+
+@pytest.mark.parametrize("reward", [
+    lambda z, a: torch.zeros(z.shape[0], 1),                     # all scores equal
+    lambda z, a: torch.full((z.shape[0], 1), -math.inf),          # all -inf
+    lambda z, a: torch.where(a > 0, torch.nan, 1.0).sum(-1, keepdim=True),  # some NaN
+])
+def test_degenerate_scores_never_give_nan(reward):
+    planner = LatentMPPIPlanner(lambda z, a: z, reward, None, 2,
+                                PlannerConfig(horizon=3, num_samples=16, num_elites=4), seed=0)
+    out = _plan(planner, torch.zeros(3, 2))
+    assert torch.isfinite(out["action"]).all() and torch.isfinite(out["planner", "mean"]).all()
+    assert (out["action"].abs() <= 1).all()
+
+
+def test_seeded_planner_is_deterministic_and_bounded():
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(obs_dim=4, action_dim=3, size="tiny")
+    cfg = PlannerConfig(horizon=4, num_samples=32, num_elites=4, action_low=-0.5, action_high=0.5)
+    latent = torch.rand(2, wm.latent_dim)
+    a = _plan(LatentMPPIPlanner.from_world_model(wm, cfg, seed=3), latent)
+    b = _plan(LatentMPPIPlanner.from_world_model(wm, cfg, seed=3), latent)
+    assert torch.equal(a["action"], b["action"])
+    assert (a["action"].abs() <= 0.5).all()
+    assert a["planner", "elite_actions"].shape == (2, 4, 4, 3)
+    assert a["planner", "rewards"].shape == (2, 4)
+
+
+def test_accepts_tensordict_modules_and_unbatched_latents():
+    dyn = TensorDictModule(lambda z, a: z + 0.1 * a, in_keys=["latent", "action"], out_keys=["latent"])
+    rew = TensorDictModule(lambda z, a: -(z - 1).pow(2), in_keys=["latent", "action"], out_keys=["reward"])
+    planner = LatentMPPIPlanner(dyn, rew, None, 1, PlannerConfig(horizon=4), seed=0)
+    out = planner(TensorDict({"latent": torch.zeros(1)}, []))
+    assert out["action"].shape == (1,) and out["action"].item() > 0.5
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(num_samples=8, num_elites=16), "num_elites \\(16\\) must be <= num_samples"),
+    (dict(init_std=-1.0), "stds must satisfy"),
+    (dict(horizon=0), "horizon must be >= 1"),
+    (dict(temperature=0.0), "temperature"),
+    (dict(action_low=1.0, action_high=-1.0), "action bounds inverted"),
+])
+def test_bad_configs_are_clear_errors(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        PlannerConfig(**kwargs)
+
+
+def test_missing_latent_key_is_a_clear_error():
+    planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: z, None, 1)
+    with pytest.raises(KeyError, match="no 'latent'"):
+        planner(TensorDict({"obs": torch.zeros(2, 1)}, [2]))
