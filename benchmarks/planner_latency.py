@@ -1,0 +1,107 @@
+"""Planner latency per action: simdist's LatentMPPIPlanner vs TorchRL's MPPIPlanner.
+
+Both plan over the same networks (a SimDist world model: MLP dynamics, reward and value
+heads, latent 64, 12-D actions like the quadruped) at the same horizon / samples /
+iterations / elites, one environment, in the same run. TorchRL's planner needs a
+``ModelBasedEnvBase`` (it rolls out the world model through TensorDict env steps) and an
+advantage module (``TDLambdaEstimator`` over the value head), built here from the same
+modules. Latency = median wall time of ``planner(td)`` over many calls.
+
+Usage:
+    python benchmarks/planner_latency.py             # CPU default + SimDist reference
+    python benchmarks/planner_latency.py --quick
+    python benchmarks/planner_latency.py --compile   # also the torch.compile path
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+from torchrl.data import Bounded, Composite, Unbounded
+from torchrl.envs.model_based import ModelBasedEnvBase
+from torchrl.modules import MPPIPlanner, ValueOperator, WorldModelWrapper
+from torchrl.objectives.value import TDLambdaEstimator
+
+import simdist  # noqa: F401
+from simdist.modules import SimDistWorldModel
+from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
+
+
+class LatentEnv(ModelBasedEnvBase):
+    """The world model's latent dynamics as a TorchRL model-based env (for MPPIPlanner)."""
+
+    def __init__(self, world_model, latent_dim, action_dim):
+        super().__init__(world_model)
+        self.state_spec = Composite(latent=Unbounded((latent_dim,)))
+        self.observation_spec = Composite(latent=Unbounded((latent_dim,)))
+        self.action_spec = Bounded(-1.0, 1.0, (action_dim,))
+        self.reward_spec = Unbounded((1,))
+
+    def _reset(self, tensordict):
+        return tensordict.clone()
+
+
+def torchrl_planner(wm: SimDistWorldModel, cfg: PlannerConfig) -> MPPIPlanner:
+    model = WorldModelWrapper(
+        TensorDictModule(wm.dynamics, in_keys=["latent", "action"], out_keys=["latent"]),
+        TensorDictModule(wm.reward_head, in_keys=["latent", "action"], out_keys=["reward"]))
+    env = LatentEnv(model, wm.latent_dim, wm.action_dim)
+    value = ValueOperator(wm.value_head, in_keys=["latent"])
+    advantage = TDLambdaEstimator(gamma=cfg.gamma, lmbda=0.95, value_network=value)
+    return MPPIPlanner(env, advantage, temperature=cfg.temperature,
+                       planning_horizon=cfg.horizon, optim_steps=cfg.iterations,
+                       num_candidates=cfg.num_samples, top_k=cfg.num_elites)
+
+
+def latency_ms(fn, calls: int) -> float:
+    fn()
+    times = []
+    for _ in range(calls):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(times)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--compile", action="store_true")
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    args = parser.parse_args()
+    torch.manual_seed(0)
+    device = torch.device(args.device)
+    wm = SimDistWorldModel.build(obs_dim=89, action_dim=12, size="small").to(device).eval()
+    configs = {"CPU default": PlannerConfig(), "SimDist reference": PlannerConfig.reference()}
+    print(f"device {device}, torch threads {torch.get_num_threads()}, latent {wm.latent_dim}, "
+          f"actions {wm.action_dim}, MLP width 256")
+    print(f"{'config':18s} {'H x N x iters (K)':>20s} {'simdist ms':>11s} {'compiled ms':>12s} "
+          f"{'torchrl ms':>11s} {'speed-up':>9s}")
+    for name, cfg in configs.items():
+        calls = 3 if args.quick else (30 if cfg.num_samples < 200 else 8)
+        latent = torch.rand(1, wm.latent_dim, device=device)
+        ours = LatentMPPIPlanner.from_world_model(wm, cfg, seed=0)
+        td = TensorDict({"latent": latent}, [1], device=device)
+        ours_ms = latency_ms(lambda: ours(td.clone()), calls)
+        compiled_ms = float("nan")
+        if args.compile:
+            compiled = LatentMPPIPlanner.from_world_model(wm, cfg, seed=0, compile=True)
+            start = time.perf_counter()
+            compiled(td.clone())
+            print(f"  ({name}: compile warm-up {time.perf_counter() - start:.0f} s)")
+            compiled_ms = latency_ms(lambda: compiled(td.clone()), calls)
+        theirs = torchrl_planner(wm, cfg).to(device)
+        with torch.no_grad():
+            theirs_ms = latency_ms(lambda: theirs(td.clone()), max(2, calls // 3))
+        dims = f"{cfg.horizon} x {cfg.num_samples} x {cfg.iterations} ({cfg.num_elites})"
+        print(f"{name:18s} {dims:>20s} {ours_ms:11.1f} {compiled_ms:12.1f} {theirs_ms:11.1f} "
+              f"{theirs_ms / ours_ms:8.1f}x")
+
+
+if __name__ == "__main__":
+    main()

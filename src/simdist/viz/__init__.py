@@ -1,0 +1,6 @@
+"""Visualisation: rerun recordings of plans and rollouts."""
+
+from simdist.viz.kinematics import BodyPositions, decode_plans
+from simdist.viz.rerun_log import PlanningRecorder, entity_paths
+
+__all__ = ["BodyPositions", "decode_plans", "PlanningRecorder", "entity_paths"]
