@@ -18,10 +18,11 @@ class ScalarHead(nn.Module):
         torch.Size([4, 1])
     """
 
-    def __init__(self, in_dim: int, hidden: int = 200, layers: int = 2):
+    def __init__(self, in_dim: int, hidden: int = 200, layers: int = 2,
+                 activation: type[nn.Module] = nn.ELU):
         super().__init__()
         self.in_dim = in_dim
-        self.net = mlp(in_dim, 1, hidden, layers)
+        self.net = mlp(in_dim, 1, hidden, layers, activation)
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         x = torch.cat(inputs, -1) if len(inputs) > 1 else inputs[0]
@@ -112,10 +113,11 @@ class PolicyPrior(nn.Module):
         torch.Size([2, 3])
     """
 
-    def __init__(self, latent_dim: int, action_dim: int, hidden: int = 256, layers: int = 2):
+    def __init__(self, latent_dim: int, action_dim: int, hidden: int = 256, layers: int = 2,
+                 activation: type[nn.Module] = nn.SiLU):
         super().__init__()
         self.action_dim = action_dim
-        self.net = mlp(latent_dim, action_dim, hidden, layers)
+        self.net = mlp(latent_dim, action_dim, hidden, layers, activation)
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
         return torch.tanh(self.net(latent))

@@ -37,10 +37,10 @@ class PlannerConfig:
         ValueError: num_elites (16) must be <= num_samples (8)
     """
 
-    horizon: int = 8
-    num_samples: int = 128
+    horizon: int = 5
+    num_samples: int = 64
     iterations: int = 3
-    num_elites: int = 16
+    num_elites: int = 8
     temperature: float = 0.25
     gamma: float = 0.99
     init_std: float = 2.0
@@ -98,9 +98,10 @@ class LatentMPPIPlanner(TensorDictModuleBase):
     Reads ``latent_key`` (``[B, L]``: B environments at once) and, if present,
     ``is_init_key`` (``[B, 1]``; resets that env's warm start). Writes ``action_key``
     (``[B, A]``) and, for inspection, ``("planner", "mean")`` (``[B, H, A]``, the final plan),
-    ``("planner", "std")``, ``("planner", "rewards")`` (``[B, H]``, predicted along the
-    plan), ``("planner", "value")`` (``[B]``, terminal value of the plan) and
-    ``("planner", "elite_actions")`` (``[B, K, H, A]``, best first).
+    ``("planner", "std")``, ``("planner", "rewards")`` (``[B, H]``) and
+    ``("planner", "value")`` (``[B]``): predicted rewards and terminal value along the best
+    trajectory of the last iteration, and ``("planner", "elite_actions")``
+    (``[B, K, H, A]``, best first).
 
     Args:
         dynamics: ``(z [N, L], a [N, A]) -> z' [N, L]``.
@@ -218,7 +219,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
                 c.action_low, c.action_high)
             if proposals is not None:
                 actions = torch.cat([proposals, actions], 1)
-            scores, _, _ = self._evaluate(latent, actions)
+            scores, rewards, values = self._evaluate(latent, actions)
             # Non-finite scores (a diverging model) rank last instead of poisoning the update.
             scores = torch.nan_to_num(scores, nan=-1e30, posinf=1e30, neginf=-1e30)
             elite_scores, index = scores.topk(K, dim=1)
@@ -230,8 +231,10 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             w = weights[..., None, None]
             mean = (w * elites).sum(1)
             std = ((w * (elites - mean[:, None]).pow(2)).sum(1)).sqrt().clamp(c.min_std, c.max_std)
-        _, rewards, value = self._evaluate(latent, mean[:, None])
-        return mean, std, rewards[:, 0], value[:, 0], elites
+        # Predictions along the best elite of the last iteration (no extra model pass).
+        best = index[:, 0]
+        batch = torch.arange(B, device=latent.device)
+        return mean, std, rewards[batch, best], values[batch, best], elites
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         latent = tensordict.get(self.latent_key, None)

@@ -34,7 +34,9 @@ class MLPDynamics(nn.Module):
                  simnorm_groups: int | None = 8):
         super().__init__()
         self.latent_dim, self.action_dim, self.simnorm_groups = latent_dim, action_dim, simnorm_groups
-        self.net = mlp(latent_dim + action_dim, latent_dim, hidden, layers, activation=nn.Mish)
+        # SiLU rather than TD-MPC2's Mish: same smoothness, ~7x cheaper on CPU (32 vs 230 us
+        # per [128, 256] activation here), and the planner evaluates this thousands of times.
+        self.net = mlp(latent_dim + action_dim, latent_dim, hidden, layers, activation=nn.SiLU)
 
     def forward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         z = latent + self.net(torch.cat([latent, action], -1))
@@ -79,8 +81,8 @@ class SimDistWorldModel(nn.Module):
         return cls(
             HistoryEncoder(obs_dim, s["history"], latent, hidden, simnorm_groups=groups),
             dynamics or MLPDynamics(latent, action_dim, hidden, simnorm_groups=groups),
-            ScalarHead(latent + action_dim, hidden),
-            ScalarHead(latent, hidden),
+            ScalarHead(latent + action_dim, hidden, activation=nn.SiLU),
+            ScalarHead(latent, hidden, activation=nn.SiLU),
             PolicyPrior(latent, action_dim, hidden),
         )
 
