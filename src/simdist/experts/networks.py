@@ -1,0 +1,41 @@
+"""Expert actor and critic: TorchRL SAC networks on the robot observation."""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+
+
+def make_actor(obs_dim: int, action_spec, hidden: int = 256, obs_key="observation"):
+    """Tanh-Gaussian SAC actor (``observation -> action``) bounded by ``action_spec``."""
+    action_dim = action_spec.shape[-1]
+    net = nn.Sequential(
+        nn.LayerNorm(obs_dim),  # observations mix joint angles, velocities and forces
+        MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=[hidden, hidden],
+            activation_class=nn.ELU),
+        NormalParamExtractor(scale_mapping="biased_softplus_1.0", scale_lb=1e-3),
+    )
+    module = TensorDictModule(net, in_keys=[obs_key], out_keys=["loc", "scale"])
+    low, high = action_spec.space.low, action_spec.space.high
+    return ProbabilisticActor(module, in_keys=["loc", "scale"], spec=action_spec,
+                              distribution_class=TanhNormal,
+                              distribution_kwargs={"low": low, "high": high},
+                              return_log_prob=False)
+
+
+class QNetwork(nn.Module):
+    def __init__(self, obs_dim: int, action_dim: int, hidden: int = 256):
+        super().__init__()
+        self.norm = nn.LayerNorm(obs_dim)
+        self.net = MLP(in_features=obs_dim + action_dim, out_features=1,
+                       num_cells=[hidden, hidden], activation_class=nn.ELU)
+
+    def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([self.norm(observation), action], -1))
+
+
+def make_critic(obs_dim: int, action_dim: int, hidden: int = 256, obs_key="observation"):
+    """``Q(observation, action)`` as a TorchRL ``ValueOperator``."""
+    return ValueOperator(QNetwork(obs_dim, action_dim, hidden), in_keys=[obs_key, "action"])

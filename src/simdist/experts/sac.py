@@ -1,0 +1,219 @@
+"""Train a state-based expert with TorchRL SAC under dynamics randomisation.
+
+SAC is the sample-efficient choice on 2 CPU cores (PPO needs thousands of parallel envs
+to shine). The critic is kept: ``Q(s, pi(s))`` labels dataset values. Checkpoints are
+written atomically every ``checkpoint_every`` frames (resume picks up the latest), and a
+snapshot of the actor is kept at each of ``snapshot_every`` frames: earlier, weaker
+policies make the SimDist dataset mixed-quality.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.objectives import SACLoss, SoftUpdate
+from tqdm import tqdm
+
+from simdist.envs import DynamicsRandomisation, make_env
+from simdist.experts.networks import make_actor, make_critic
+from simdist.utils.checkpoint import load_checkpoint, save_atomic
+
+
+@dataclass
+class SACExpertConfig:
+    """Expert training configuration (flat, typed; saved beside every checkpoint)."""
+
+    task: str = "quadruped-flat"
+    speeds: tuple = (0.25, 0.5, 0.75)
+    num_envs: int = 8
+    total_frames: int = 400_000
+    init_random_frames: int = 10_000
+    frames_per_batch: int = 64
+    updates_per_batch: int = 32
+    batch_size: int = 256
+    buffer_size: int = 1_000_000
+    lr: float = 3e-4
+    gamma: float = 0.99
+    tau: float = 0.005
+    hidden: int = 256
+    episode_steps: int = 500
+    dynamics_randomisation: bool = True
+    checkpoint_every: int = 20_000
+    snapshot_every: int = 50_000
+    eval_episodes: int = 4
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("num_envs", "total_frames", "frames_per_batch", "batch_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1")
+        if self.frames_per_batch % self.num_envs:
+            raise ValueError("frames_per_batch must be a multiple of num_envs")
+
+
+def make_training_env(cfg: SACExpertConfig, seed: int, num_envs: int | None = None, target=None):
+    return make_env(cfg.task, num_envs=num_envs if num_envs is not None else cfg.num_envs,
+                    seed=seed, max_episode_steps=cfg.episode_steps, target=target,
+                    task_kwargs={"speeds": tuple(cfg.speeds)},
+                    dynamics_randomisation=DynamicsRandomisation()
+                    if cfg.dynamics_randomisation and target is None else None)
+
+
+class Expert:
+    """A trained expert: deterministic policy and value labels ``V(s) = Q(s, pi(s))``.
+
+    Examples:
+        >>> expert = Expert.untrained(obs_dim=89, action_dim=12)
+        >>> td = TensorDict({"observation": torch.zeros(3, 89)}, [3])
+        >>> expert.act(td)["action"].shape, expert.value(td).shape
+        (torch.Size([3, 12]), torch.Size([3, 1]))
+    """
+
+    def __init__(self, actor, critic):
+        self.actor, self.critic = actor, critic
+
+    @classmethod
+    def untrained(cls, obs_dim: int, action_dim: int, hidden: int = 256) -> Expert:
+        from torchrl.data import Bounded
+        spec = Bounded(-1.0, 1.0, (action_dim,))
+        return cls(make_actor(obs_dim, spec, hidden), make_critic(obs_dim, action_dim, hidden))
+
+    @torch.no_grad()
+    def act(self, td: TensorDict, deterministic: bool = True) -> TensorDict:
+        mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+        with set_exploration_type(mode):
+            return self.actor(td)
+
+    @torch.no_grad()
+    def value(self, td: TensorDict) -> torch.Tensor:
+        probe = self.act(td.select("observation").clone())
+        return self.critic(probe)["state_action_value"]
+
+    @classmethod
+    def load(cls, path: str | Path, snapshot: str | None = None) -> Expert:
+        """Loads ``expert.pt`` (the final policy, or a named earlier ``snapshot``)."""
+        ckpt = load_checkpoint(path)
+        cfg = ckpt["config"]
+        spec_low, spec_high = ckpt["action_low"], ckpt["action_high"]
+        from torchrl.data import Bounded
+        spec = Bounded(spec_low, spec_high, spec_low.shape)
+        actor = make_actor(ckpt["obs_dim"], spec, cfg["hidden"])
+        critic = make_critic(ckpt["obs_dim"], spec_low.shape[-1], cfg["hidden"])
+        if snapshot is not None and snapshot not in ckpt["snapshots"]:
+            raise KeyError(f"no snapshot {snapshot!r}; available: {sorted(ckpt['snapshots'])}")
+        actor.load_state_dict(ckpt["snapshots"][snapshot] if snapshot else ckpt["actor"])
+        critic.load_state_dict(ckpt["critic"])
+        return cls(actor.eval(), critic.eval())
+
+
+def evaluate(actor, cfg: SACExpertConfig, episodes: int, seed: int, target=None) -> dict:
+    """Deterministic rollouts: mean return and forward progress (m)."""
+    env = make_training_env(cfg, seed, num_envs=episodes, target=target)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.rollout(cfg.episode_steps, actor, break_when_any_done=False)
+    return {"return": td["next", "reward"].sum(-2).mean().item(),
+            "forward_progress": td["next", "forward_progress"][:, -1].mean().item()}
+
+
+def train_sac_expert(cfg: SACExpertConfig, out_dir: str | Path, progress: bool = True) -> Path:
+    """Trains (or resumes) an expert; returns the path of ``expert.pt``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    env = make_training_env(cfg, cfg.seed)
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    action_spec = env.action_spec[0] if env.batch_size else env.action_spec
+    actor = make_actor(obs_dim, action_spec, cfg.hidden)
+    critic = make_critic(obs_dim, action_spec.shape[-1], cfg.hidden)
+    with torch.no_grad():  # materialise lazy shapes
+        td = env.reset()
+        critic(actor(td))
+    loss = SACLoss(actor, critic, num_qvalue_nets=2, loss_function="l2")
+    loss.make_value_estimator(gamma=cfg.gamma)
+    updater = SoftUpdate(loss, tau=cfg.tau)
+    optim = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size),
+                                    batch_size=cfg.batch_size)
+    latest = out_dir / "latest.pt"
+    state = {"frames": 0, "snapshots": {}, "curve": []}
+    if latest.exists():  # resume: weights and counters (the replay buffer is refilled)
+        ckpt = load_checkpoint(latest)
+        loss.load_state_dict(ckpt["loss"])
+        optim.load_state_dict(ckpt["optim"])
+        state = {"frames": ckpt["frames"], "snapshots": ckpt["snapshots"], "curve": ckpt["curve"]}
+    remaining = cfg.total_frames - state["frames"]
+    if remaining <= 0:
+        return _export(out_dir, cfg, loss, state, obs_dim, action_spec)
+    collector = Collector(env, actor, frames_per_batch=cfg.frames_per_batch,
+                          total_frames=remaining,
+                          init_random_frames=max(0, cfg.init_random_frames - state["frames"])
+                          or None, auto_register_policy_transforms=False)
+    bar = tqdm(total=cfg.total_frames, initial=state["frames"], disable=not progress,
+               desc="SAC expert", unit="frames")
+    start, last_ckpt = time.perf_counter(), state["frames"]
+    for batch in collector:
+        buffer.extend(batch.reshape(-1))
+        state["frames"] += batch.numel()
+        bar.update(batch.numel())
+        if len(buffer) >= cfg.batch_size and state["frames"] >= cfg.init_random_frames:
+            for _ in range(cfg.updates_per_batch):
+                out = loss(buffer.sample())
+                total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+                optim.zero_grad()
+                total.backward()
+                optim.step()
+                updater.step()
+        if state["frames"] - last_ckpt >= cfg.checkpoint_every or state["frames"] >= cfg.total_frames:
+            last_ckpt = state["frames"]
+            # SACLoss owns the trained parameters: evaluate with them swapped in.
+            with loss.actor_network_params.to_module(loss.actor_network):
+                metrics = evaluate(loss.actor_network, cfg, cfg.eval_episodes, seed=10_000)
+            metrics.update(frames=state["frames"], seconds=time.perf_counter() - start)
+            state["curve"].append(metrics)
+            bar.set_postfix(ret=f"{metrics['return']:.0f}", progress=f"{metrics['forward_progress']:.2f}m")
+            due = (len(state["snapshots"]) + 1) * cfg.snapshot_every
+            if due <= state["frames"] < cfg.total_frames:
+                state["snapshots"][f"frames_{state['frames']}"] = _actor_state(loss)
+            save_atomic({"loss": loss.state_dict(), "optim": optim.state_dict(), **state,
+                         "config": dataclasses.asdict(cfg)}, latest)
+    collector.shutdown()
+    bar.close()
+    return _export(out_dir, cfg, loss, state, obs_dim, action_spec)
+
+
+def _export(out_dir, cfg, loss, state, obs_dim, action_spec) -> Path:
+    """Writes the small deployable ``expert.pt`` (actor, critic, snapshots, curve)."""
+    path = out_dir / "expert.pt"
+    payload = {
+        "actor": {k: v for k, v in _actor_state(loss).items()},
+        "critic": _critic_state(loss),
+        "snapshots": state["snapshots"], "curve": state["curve"], "frames": state["frames"],
+        "obs_dim": obs_dim, "action_low": action_spec.space.low.clone(),
+        "action_high": action_spec.space.high.clone(), "config": dataclasses.asdict(cfg),
+    }
+    save_atomic(payload, path)
+    (out_dir / "training_curve.json").write_text(json.dumps(state["curve"], indent=2))
+    return path
+
+
+def _actor_state(loss: SACLoss) -> dict:
+    # SACLoss holds functional copies of the parameters; write them back into a module.
+    actor = loss.actor_network
+    with loss.actor_network_params.to_module(actor):
+        return {k: v.detach().clone() for k, v in actor.state_dict().items()}
+
+
+def _critic_state(loss: SACLoss) -> dict:
+    critic = loss.qvalue_network
+    with loss.qvalue_network_params[0].to_module(critic):
+        return {k: v.detach().clone() for k, v in critic.state_dict().items()}

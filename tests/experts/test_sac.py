@@ -1,0 +1,41 @@
+"""SAC expert training: checkpoints are atomic, weights-only, resumable; snapshots kept."""
+
+import pytest
+import torch
+
+from simdist.experts import Expert, SACExpertConfig, train_sac_expert
+from simdist.experts.sac import make_training_env
+
+TINY = dict(num_envs=2, init_random_frames=128, frames_per_batch=64, updates_per_batch=2,
+            batch_size=32, checkpoint_every=256, snapshot_every=256, eval_episodes=1,
+            episode_steps=40, hidden=32)
+
+
+def test_tiny_training_run_resumes_and_exports(tmp_path):
+    first = train_sac_expert(SACExpertConfig(total_frames=512, **TINY), tmp_path, progress=False)
+    ckpt = torch.load(first, weights_only=True)  # no pickled code needed
+    assert ckpt["frames"] == 512 and len(ckpt["curve"]) == 2
+    assert list(ckpt["snapshots"]) == ["frames_256"]
+    # resume: a larger budget continues from 512 frames instead of starting over
+    second = train_sac_expert(SACExpertConfig(total_frames=768, **TINY), tmp_path, progress=False)
+    ckpt = torch.load(second, weights_only=True)
+    assert ckpt["frames"] == 768 and [c["frames"] for c in ckpt["curve"]] == [256, 512, 768]
+    expert = Expert.load(second)
+    td = make_training_env(SACExpertConfig(**TINY), seed=0, num_envs=3).reset()
+    action = expert.act(td)["action"]
+    assert action.shape == (3, 12) and (action.abs() <= 1).all()
+    assert expert.value(td).shape == (3, 1)
+    early = Expert.load(second, snapshot="frames_256")
+    assert not torch.equal(early.act(td)["action"], action)
+    with pytest.raises(KeyError, match="available: \\['frames_256'"):
+        Expert.load(second, snapshot="frames_1")
+
+
+def test_missing_checkpoint_is_a_clear_error(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist; train it first"):
+        Expert.load(tmp_path / "nope.pt")
+
+
+def test_bad_config_is_rejected():
+    with pytest.raises(ValueError, match="multiple of num_envs"):
+        SACExpertConfig(num_envs=3, frames_per_batch=64)
