@@ -1,0 +1,134 @@
+"""The perturbation schedule's statistics match its configuration; state rides in the TensorDict."""
+
+import functools
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictSequential
+from torchrl.envs import InitTracker, ParallelEnv, TransformedEnv
+
+from simdist.data import ActionPerturbation, PerturbationSchedule
+from simdist.envs import make_env
+
+
+def _runs(flags: np.ndarray, value: bool) -> list[int]:
+    """Lengths of complete runs of ``value`` (first and last runs dropped: censored)."""
+    lengths, count, seen_other = [], 0, False
+    for f in flags:
+        if f == value:
+            count += 1
+        else:
+            if count and seen_other:
+                lengths.append(count)
+            count, seen_other = 0, True
+    return lengths
+
+
+def _simulate(schedule, envs=300, steps=3000, action_dim=3, seed=0):
+    """Drives the module alone, carrying state like step_mdp does."""
+    module = ActionPerturbation(action_dim, schedule, seed=seed)
+    td = TensorDict({"is_init": torch.ones(envs, 1, dtype=torch.bool)}, [envs])
+    noisy, stds, deltas = [], None, []
+    for t in range(steps):
+        td["action"] = torch.zeros(envs, action_dim)
+        td = module(td)
+        noisy.append(~td["expert_active"][:, 0])
+        deltas.append(td["action"])
+        stds = td["next", "perturbation", "std"] if stds is None else stds
+        td = TensorDict({"is_init": torch.zeros(envs, 1, dtype=torch.bool),
+                         "perturbation": td["next", "perturbation"]}, [envs])
+    return torch.stack(noisy, 1).numpy(), stds, torch.stack(deltas, 1)
+
+
+def test_burst_pause_lengths_std_range_and_never_fraction_match_the_schedule():
+    schedule = PerturbationSchedule(std_range=(0.2, 0.6), burst_range=(2, 10),
+                                    pause_range=(5, 30), never_noised_fraction=0.2,
+                                    action_low=-100, action_high=100)
+    noisy, stds, actions = _simulate(schedule)
+    never = ~noisy.any(1)
+    assert abs(never.mean() - 0.2) < 0.06  # 300 envs: binomial sd ~0.023
+    bursts = [n for row in noisy[~never] for n in _runs(row, True)]
+    pauses = [n for row in noisy[~never] for n in _runs(row, False)]
+    assert min(bursts) >= 2 and max(bursts) <= 10 and abs(np.mean(bursts) - 6.0) < 0.3
+    assert min(pauses) >= 5 and max(pauses) <= 30 and abs(np.mean(pauses) - 17.5) < 0.6
+    assert stds.min() >= 0.2 and stds.max() <= 0.6 and abs(stds.mean().item() - 0.4) < 0.02
+    # the noise applied during bursts has the per-joint std that was drawn
+    env_index = np.flatnonzero(~never)[:50]
+    for i in env_index[:10]:
+        applied = actions[i][torch.from_numpy(noisy[i])]
+        assert torch.allclose(applied.std(0), stds[i], rtol=0.35)
+    assert (actions[torch.from_numpy(~noisy)] == 0).all()  # pauses: the expert's action
+
+
+def test_new_episode_redraws_the_schedule():
+    module = ActionPerturbation(2, seed=1)
+    td = TensorDict({"action": torch.zeros(64, 2), "is_init": torch.ones(64, 1, dtype=torch.bool)}, [64])
+    first = module(td)["next", "perturbation", "std"].clone()
+    td2 = TensorDict({"action": torch.zeros(64, 2), "is_init": torch.ones(64, 1, dtype=torch.bool),
+                      "perturbation": {"std": first}}, [64])
+    assert not torch.equal(module(td2)["next", "perturbation", "std"], first)
+
+
+def test_seeded_and_bounded():
+    a = _simulate(PerturbationSchedule(), envs=8, steps=200, seed=3)
+    b = _simulate(PerturbationSchedule(), envs=8, steps=200, seed=3)
+    assert np.array_equal(a[0], b[0]) and torch.equal(a[2], b[2])
+    assert a[2].abs().max() <= 1.0
+
+
+def _perturbed_env(seed=0):
+    env = TransformedEnv(make_env("cartpole-balance", seed=seed, max_episode_steps=30), InitTracker())
+    module = ActionPerturbation(1, PerturbationSchedule(burst_range=(2, 4), pause_range=(2, 4)),
+                                seed=seed)
+    env.append_transform(module.make_primer())
+    return env, module
+
+
+def test_state_is_carried_through_env_rollouts_and_reset_per_episode():
+    env, module = _perturbed_env()
+    expert = lambda td: td.set("action", torch.zeros(1))  # noqa: E731
+    policy = TensorDictSequential(expert, module)
+    td = env.rollout(70, policy, break_when_any_done=False)
+    assert td["expert_active"].dtype == torch.bool and td["expert_active"].shape == (70, 1)
+    assert (~td["expert_active"]).any() and td["expert_active"].any()
+    remaining = td["perturbation", "remaining"][:, 0]
+    nxt = td["next", "perturbation", "remaining"][:, 0]
+    # carried: the next step's input state is this step's output state (within episodes)
+    same_episode = ~td["is_init"][1:, 0]
+    assert torch.equal(remaining[1:][same_episode], nxt[:-1][same_episode])
+    std = td["perturbation", "std"]
+    starts = torch.nonzero(td["is_init"][:, 0]).flatten().tolist()
+    assert starts[:3] == [0, 30, 60]  # episodes of 30 steps
+    assert not torch.equal(td["next", "perturbation", "std"][0], td["next", "perturbation", "std"][30])
+    # the recorded action is the applied (perturbed) one
+    assert (td["action"][~td["expert_active"][:, 0]] != 0).any()
+
+
+def test_works_with_parallel_workers():
+    def make():
+        return _perturbed_env()[0]
+    env = ParallelEnv(2, make)
+    try:
+        module = ActionPerturbation(1, PerturbationSchedule(burst_range=(2, 4), pause_range=(2, 4)))
+        expert = lambda td: td.set("action", torch.zeros(2, 1))  # noqa: E731
+        td = env.rollout(12, TensorDictSequential(expert, module))
+        assert td.shape == (2, 12) and (~td["expert_active"]).any()
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(std_range=(1.0, 0.5)), "std_range range is inverted"),
+    (dict(pause_range=(2.5, 4)), "whole steps"),
+    (dict(never_noised_fraction=1.5), "never_noised_fraction"),
+])
+def test_bad_schedule_values(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        PerturbationSchedule(**kwargs)
+
+
+def test_missing_init_tracker_is_a_clear_error():
+    with pytest.raises(KeyError, match="InitTracker"):
+        ActionPerturbation(1)(TensorDict({"action": torch.zeros(2, 1)}, [2]))
