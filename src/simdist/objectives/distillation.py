@@ -66,7 +66,8 @@ class TwistDistillationLoss(SimdistLoss):
     def trainable_parameters(self):
         return list(self.student.parameters())
 
-    def forward(self, td: TensorDictBase) -> TensorDict:
+    def filter_both(self, td: TensorDictBase) -> tuple[dict, dict]:
+        """Teacher (no grad) and student posterior states of a slice, with shared noise."""
         B, T = sequence_batch(td)
         action = self.read(td, "action")
         is_init = self.read_flag(td, "is_init", (B, T))
@@ -77,6 +78,11 @@ class TwistDistillationLoss(SimdistLoss):
                                            is_init, noise=noise)
         student = self.student.observe(self.read(td, "student_observation"), action, is_init,
                                        noise=noise)
+        return teacher, student
+
+    def forward(self, td: TensorDictBase) -> TensorDict:
+        teacher, student = self.filter_both(td)
+        rssm = self.student.rssm
         belief = (teacher["belief"] - student["belief"]).pow(2).sum(-1).mean()
         prior = rssm.kl(student["prior_logits"], teacher["prior_logits"]).mean()
         posterior = rssm.kl(student["posterior_logits"], teacher["posterior_logits"]).mean()

@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.utils import NestedKey
 
 from simdist.modules.rssm import RSSMState
 from simdist.modules.world_model import DreamerWorldModel
-from simdist.objectives.common import SimdistLoss, sequence_batch
-from simdist.objectives.distillation import check_compatible
+from simdist.objectives.common import sequence_batch
+from simdist.objectives.distillation import TwistDistillationLoss
 
 
-class ImaginedAlignmentLoss(SimdistLoss):
+class ImaginedAlignmentLoss(TwistDistillationLoss):
     """``sum_i ||h_i^T - h_i^S||^2 + KL[p_S(z_i|h_i^S) || p_T(z_i|h_i^T)]`` over imagined steps.
 
     From the posterior states of a slice, the frozen teacher imagines ``horizon`` steps
@@ -32,43 +29,25 @@ class ImaginedAlignmentLoss(SimdistLoss):
         action_noise_std: exploration noise on the teacher's actions (TWIST ablation: 0).
     """
 
-    @dataclass
-    class _AcceptedKeys:
-        teacher_observation: NestedKey = ("next", "state")
-        student_observation: NestedKey = ("next", "pixels")
-        action: NestedKey = "action"
-        is_init: NestedKey = "is_init"
-
-    default_keys = _AcceptedKeys
+    # Subclasses TwistDistillationLoss for its keys, compatibility check and
+    # ``filter_both``; ``forward`` computes Eq. 4 only.
 
     def __init__(self, teacher: DreamerWorldModel, student: DreamerWorldModel, teacher_actor,
                  horizon: int = 15, action_noise_std: float = 0.3, belief_weight: float = 1.0,
                  prior_weight: float = 1.0, max_starts: int | None = None,
                  check_inputs: bool = True):
-        super().__init__(check_inputs)
-        check_compatible(teacher, student)
+        super().__init__(teacher, student, check_inputs=check_inputs)
         if horizon < 1 or action_noise_std < 0:
             raise ValueError("horizon must be >= 1 and action_noise_std >= 0")
-        self.teacher, self.student, self.teacher_actor = teacher, student, teacher_actor
+        self.teacher_actor = teacher_actor
         self.horizon, self.action_noise_std = horizon, action_noise_std
         self.weights, self.max_starts = (belief_weight, prior_weight), max_starts
-
-    def trainable_parameters(self):
-        return list(self.student.parameters())
 
     def _posteriors(self, td, B, T):
         if ("student", "belief") in td.keys(True):
             return (RSSMState(td.get(("teacher", "belief")), td.get(("teacher", "stoch"))),
                     RSSMState(td.get(("student", "belief")), td.get(("student", "stoch"))))
-        action = self.read(td, "action")
-        is_init = self.read_flag(td, "is_init", (B, T))
-        rssm = self.student.rssm
-        noise = torch.rand(B, T, rssm.stoch, rssm.classes, device=action.device)
-        with torch.no_grad():
-            t = self.teacher.observe(self.read(td, "teacher_observation"), action, is_init,
-                                     noise=noise)
-        s = self.student.observe(self.read(td, "student_observation"), action, is_init,
-                                 noise=noise)
+        t, s = self.filter_both(td)
         return RSSMState(t["belief"], t["stoch"]), RSSMState(s["belief"], s["stoch"])
 
     def forward(self, td: TensorDictBase) -> TensorDict:
