@@ -1,5 +1,8 @@
-"""Data: perturbed-expert action schedules (dataset generation follows)."""
+"""Data: perturbed-expert action schedules, policy mixtures and on-disk datasets."""
 
+from simdist.data.dataset import DatasetConfig, generate_dataset, generate_shard, load_dataset
+from simdist.data.mixture import EpisodeMixture
 from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 
-__all__ = ["ActionPerturbation", "PerturbationSchedule"]
+__all__ = ["ActionPerturbation", "PerturbationSchedule", "EpisodeMixture", "DatasetConfig",
+           "generate_dataset", "generate_shard", "load_dataset"]

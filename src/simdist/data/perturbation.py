@@ -92,7 +92,7 @@ class ActionPerturbation(TensorDictModuleBase):
             "noise_on": Categorical(2, (1,), dtype=torch.bool),
             "remaining": Unbounded((1,), dtype=torch.int64),
             "never": Categorical(2, (1,), dtype=torch.bool),
-        })}), default_value=0)
+        })}), default_value=0, expand_specs=True)
 
     def _uniform(self, shape, low, high, device):
         return low + (high - low) * torch.rand(shape, generator=self._generator).to(device)

@@ -1,0 +1,172 @@
+"""Perturbed-expert datasets on disk: sharded, resumable, memory-mapped.
+
+Layout: ``<dir>/data`` is a memory-mapped TensorDict of shape ``[episodes, steps]``
+(episode-major, so every episode is contiguous); ``<dir>/meta.json`` holds the config,
+library versions, counts and the shards completed so far. A shard is a batch of
+``shard_episodes`` episodes generated from its own seed, so it is the same whenever it
+is generated: a killed run, rerun with the same command, regenerates exactly the
+unfinished shards - nothing duplicated, nothing lost.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictSequential
+from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
+from torchrl.envs import InitTracker, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm import tqdm
+
+from simdist.data.mixture import EpisodeMixture
+from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
+from simdist.envs import DynamicsRandomisation, make_env
+
+_DROP_NEXT = ("observation", "state", "pixels", "dynamics", "perturbation", "mixture", "is_init")
+
+
+@dataclass
+class DatasetConfig:
+    """What to generate. ``episodes`` must be a multiple of ``shard_episodes``."""
+
+    task: str = "quadruped-flat"
+    episodes: int = 32
+    episode_steps: int = 250
+    shard_episodes: int = 8
+    pixels: bool = False
+    image_size: int = 64
+    dynamics_randomisation: bool = True
+    final_expert_probability: float = 0.5
+    schedule: PerturbationSchedule = field(default_factory=PerturbationSchedule)
+    speeds: tuple = (0.25, 0.5, 0.75)
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.episodes < 1 or self.shard_episodes < 1 or self.episodes % self.shard_episodes:
+            raise ValueError(f"episodes ({self.episodes}) must be a positive multiple of "
+                             f"shard_episodes ({self.shard_episodes})")
+        if self.episode_steps < 2:
+            raise ValueError("episode_steps must be >= 2")
+        if not 0 <= self.final_expert_probability <= 1:
+            raise ValueError("final_expert_probability must lie in [0, 1]")
+
+    @property
+    def shards(self) -> int:
+        return self.episodes // self.shard_episodes
+
+
+def _versions() -> dict:
+    out = {}
+    for name in ("simdist", "torch", "torchrl", "tensordict", "mujoco", "dm-control"):
+        try:
+            out[name] = importlib_metadata.version(name)
+        except importlib_metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def _write_json_atomic(path: Path, payload: dict) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=str))
+    tmp.replace(path)
+
+
+def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=()) -> TensorDict:
+    """Rolls out one shard: ``[shard_episodes, episode_steps]`` perturbed-expert steps."""
+    seed = cfg.seed * 1_000_003 + shard
+    env = make_env(cfg.task, num_envs=cfg.shard_episodes, seed=seed, pixels=cfg.pixels,
+                   image_size=cfg.image_size, max_episode_steps=cfg.episode_steps,
+                   task_kwargs={"speeds": tuple(cfg.speeds)},
+                   dynamics_randomisation=DynamicsRandomisation()
+                   if cfg.dynamics_randomisation else None)
+    env = TransformedEnv(env, InitTracker())
+    action_dim = env.action_spec.shape[-1]
+    policies = [expert.actor, *[s.actor for s in snapshots]]
+    probs = [1.0] if not snapshots else (
+        [cfg.final_expert_probability]
+        + [(1 - cfg.final_expert_probability) / len(snapshots)] * len(snapshots))
+    mixture = EpisodeMixture(policies, probs, seed=seed)
+    perturb = ActionPerturbation(action_dim, cfg.schedule, seed=seed)
+    env.append_transform(mixture.make_primer())
+    env.append_transform(perturb.make_primer())
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = env.rollout(cfg.episode_steps, TensorDictSequential(mixture, perturb),
+                         break_when_any_done=False)
+        flat = td.reshape(-1)
+        td.set("value_target", expert.value(flat).reshape(*td.shape, 1))
+    td.set("policy_index", td.get(("mixture", "policy")))
+    td = td.exclude("mixture", "perturbation", *[("next", k) for k in _DROP_NEXT])
+    episode = torch.arange(cfg.shard_episodes) + shard * cfg.shard_episodes
+    # Shaped like the batch (no trailing 1): TorchRL's SliceSampler keys trajectories on it.
+    td.set("episode", episode[:, None].expand(td.shape).clone())
+    td.set("step", torch.arange(cfg.episode_steps)[None, :].expand(td.shape).clone())
+    env.close()
+    return td
+
+
+def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=(),
+                     progress: bool = True) -> Path:
+    """Generates (or resumes) a dataset under ``out_dir``; returns its path."""
+    out = Path(out_dir)
+    meta_path = out / "meta.json"
+    config = dataclasses.asdict(cfg)
+    if meta_path.exists():
+        meta = json.loads(meta_path.read_text())
+        if meta["config"] != json.loads(json.dumps(config, default=str)):
+            raise ValueError(f"{out} holds a dataset generated with a different config; "
+                             "use another directory or the same settings to resume")
+        data = TensorDict.load_memmap(out / "data")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        first = generate_shard(cfg, 0, expert, snapshots)
+        template = first[:1].expand(cfg.episodes, *first.shape[1:])
+        data = template.memmap_like(out / "data")
+        data[: cfg.shard_episodes] = first
+        meta = {"config": json.loads(json.dumps(config, default=str)), "versions": _versions(),
+                "shards_done": [0], "seconds": 0.0}
+        _write_json_atomic(meta_path, meta)
+    todo = [s for s in range(cfg.shards) if s not in meta["shards_done"]]
+    bar = tqdm(total=cfg.shards, initial=cfg.shards - len(todo), disable=not progress,
+               desc="dataset shards")
+    for shard in todo:
+        start = time.perf_counter()
+        rows = slice(shard * cfg.shard_episodes, (shard + 1) * cfg.shard_episodes)
+        data[rows] = generate_shard(cfg, shard, expert, snapshots)
+        # Only after the shard's rows are written does the progress file list it.
+        meta["shards_done"] = sorted(meta["shards_done"] + [shard])
+        meta["seconds"] += time.perf_counter() - start
+        _write_json_atomic(meta_path, meta)
+        bar.update(1)
+    bar.close()
+    meta.update(transitions=cfg.episodes * cfg.episode_steps,
+                bytes=sum(f.stat().st_size for f in (out / "data").rglob("*") if f.is_file()))
+    _write_json_atomic(meta_path, meta)
+    return out
+
+
+def load_dataset(path: str | Path, slice_len: int, batch_size: int) -> TensorDictReplayBuffer:
+    """A replay buffer over the memory-mapped dataset that samples whole-episode slices.
+
+    Slices of ``slice_len`` consecutive steps never cross an episode boundary (TorchRL's
+    ``SliceSampler`` keyed on ``"episode"``); samples come back as ``[batch, slice_len]``.
+    """
+    path = Path(path)
+    meta = json.loads((path / "meta.json").read_text())
+    cfg = meta["config"]
+    if len(meta["shards_done"]) != cfg["episodes"] // cfg["shard_episodes"]:
+        raise RuntimeError(f"{path} is incomplete ({len(meta['shards_done'])} shards done); "
+                           "rerun the generation command to finish it")
+    data = TensorDict.load_memmap(path / "data").reshape(-1)
+    if batch_size % slice_len:
+        raise ValueError("batch_size counts transitions: make it a multiple of slice_len")
+    sampler = SliceSampler(slice_len=slice_len, traj_key="episode", strict_length=True)
+    buffer = TensorDictReplayBuffer(storage=TensorStorage(data), sampler=sampler,
+                                    batch_size=batch_size)
+    return buffer
