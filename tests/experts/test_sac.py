@@ -39,3 +39,12 @@ def test_missing_checkpoint_is_a_clear_error(tmp_path):
 def test_bad_config_is_rejected():
     with pytest.raises(ValueError, match="multiple of num_envs"):
         SACExpertConfig(num_envs=3, frames_per_batch=64)
+
+
+def test_fast_deterministic_policy_matches_the_actor():
+    torch.manual_seed(0)
+    expert = Expert.untrained(obs_dim=89, action_dim=12, hidden=32)
+    from tensordict import TensorDict
+    td = TensorDict({"observation": torch.randn(5, 89) * 3}, [5])
+    torch.testing.assert_close(expert.deterministic()(td.clone())["action"],
+                               expert.act(td.clone())["action"])

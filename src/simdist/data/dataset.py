@@ -78,17 +78,29 @@ def _write_json_atomic(path: Path, payload: dict) -> None:
     tmp.replace(path)
 
 
-def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=()) -> TensorDict:
-    """Rolls out one shard: ``[shard_episodes, episode_steps]`` perturbed-expert steps."""
-    seed = cfg.seed * 1_000_003 + shard
-    env = make_env(cfg.task, num_envs=cfg.shard_episodes, seed=seed, pixels=cfg.pixels,
+def make_generation_env(cfg: DatasetConfig):
+    """The batched env a shard is rolled out in (reused across shards, reseeded each)."""
+    env = make_env(cfg.task, num_envs=cfg.shard_episodes, seed=cfg.seed, pixels=cfg.pixels,
                    image_size=cfg.image_size, max_episode_steps=cfg.episode_steps,
                    task_kwargs={"speeds": tuple(cfg.speeds)},
                    dynamics_randomisation=DynamicsRandomisation()
                    if cfg.dynamics_randomisation else None)
-    env = TransformedEnv(env, InitTracker())
+    return env
+
+
+def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=(), env=None) -> TensorDict:
+    """Rolls out one shard: ``[shard_episodes, episode_steps]`` perturbed-expert steps.
+
+    The shard depends only on ``(cfg, shard)``: the env is reseeded from them (every
+    world's initial state, randomisation draws and the schedules' generators), so a
+    reused ``env`` gives the same data as a fresh one.
+    """
+    seed = cfg.seed * 1_000_003 + shard
+    base = env if env is not None else make_generation_env(cfg)
+    base.set_seed(seed)
+    env = TransformedEnv(base, InitTracker())
     action_dim = env.action_spec.shape[-1]
-    policies = [expert.actor, *[s.actor for s in snapshots]]
+    policies = [expert.deterministic(), *[s.deterministic() for s in snapshots]]
     probs = [1.0] if not snapshots else (
         [cfg.final_expert_probability]
         + [(1 - cfg.final_expert_probability) / len(snapshots)] * len(snapshots))
@@ -107,7 +119,6 @@ def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=()) -> Tens
     # Shaped like the batch (no trailing 1): TorchRL's SliceSampler keys trajectories on it.
     td.set("episode", episode[:, None].expand(td.shape).clone())
     td.set("step", torch.arange(cfg.episode_steps)[None, :].expand(td.shape).clone())
-    env.close()
     return td
 
 
@@ -117,6 +128,7 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
     out = Path(out_dir)
     meta_path = out / "meta.json"
     config = dataclasses.asdict(cfg)
+    env = None
     if meta_path.exists():
         meta = json.loads(meta_path.read_text())
         if meta["config"] != json.loads(json.dumps(config, default=str)):
@@ -125,7 +137,8 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
         data = TensorDict.load_memmap(out / "data")
     else:
         out.mkdir(parents=True, exist_ok=True)
-        first = generate_shard(cfg, 0, expert, snapshots)
+        env = make_generation_env(cfg)
+        first = generate_shard(cfg, 0, expert, snapshots, env)
         template = first[:1].expand(cfg.episodes, *first.shape[1:])
         data = template.memmap_like(out / "data")
         data[: cfg.shard_episodes] = first
@@ -133,12 +146,14 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
                 "shards_done": [0], "seconds": 0.0}
         _write_json_atomic(meta_path, meta)
     todo = [s for s in range(cfg.shards) if s not in meta["shards_done"]]
+    if todo and env is None:
+        env = make_generation_env(cfg)
     bar = tqdm(total=cfg.shards, initial=cfg.shards - len(todo), disable=not progress,
                desc="dataset shards")
     for shard in todo:
         start = time.perf_counter()
         rows = slice(shard * cfg.shard_episodes, (shard + 1) * cfg.shard_episodes)
-        data[rows] = generate_shard(cfg, shard, expert, snapshots)
+        data[rows] = generate_shard(cfg, shard, expert, snapshots, env)
         # Only after the shard's rows are written does the progress file list it.
         meta["shards_done"] = sorted(meta["shards_done"] + [shard])
         meta["seconds"] += time.perf_counter() - start
