@@ -23,6 +23,8 @@ def main(argv=None):
     parser.add_argument("--episodes", type=int, default=DatasetConfig.episodes)
     parser.add_argument("--steps", type=int, default=DatasetConfig.episode_steps)
     parser.add_argument("--shard-episodes", type=int, default=DatasetConfig.shard_episodes)
+    parser.add_argument("--workers", type=int, default=1,
+                        help="processes stepping the worlds (TorchRL ParallelEnv)")
     parser.add_argument("--pixels", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
@@ -30,7 +32,8 @@ def main(argv=None):
     expert = Expert.load(args.expert)
     earlier = [Expert.load(args.expert, snapshot=name) for name in snapshots]
     cfg = DatasetConfig(episodes=args.episodes, episode_steps=args.steps,
-                        shard_episodes=args.shard_episodes, pixels=args.pixels, seed=args.seed)
+                        shard_episodes=args.shard_episodes, num_workers=args.workers,
+                        pixels=args.pixels, seed=args.seed)
     path = generate_dataset(cfg, args.out, expert, earlier)
     meta = json.loads((path / "meta.json").read_text())
     print(f"{meta['transitions']} transitions, {meta['bytes'] / 1e6:.1f} MB, "

@@ -88,3 +88,14 @@ def test_slices_never_cross_episode_boundaries(reference):
 def test_bad_dataset_config():
     with pytest.raises(ValueError, match="multiple of shard_episodes"):
         DatasetConfig(episodes=5, shard_episodes=2)
+
+
+def test_worker_processes_give_a_deterministic_resumable_dataset(tmp_path, experts):
+    cfg = DatasetConfig(episodes=4, shard_episodes=4, num_workers=2, episode_steps=8)
+    a = generate_dataset(cfg, tmp_path / "a", *experts, progress=False)
+    b = generate_dataset(cfg, tmp_path / "b", *experts, progress=False)
+    da, db = TensorDict.load_memmap(a / "data"), TensorDict.load_memmap(b / "data")
+    assert da.shape == (4, 8) and (da == db).all()
+    assert torch.equal(da["episode"][:, 0], torch.arange(4))
+    with pytest.raises(ValueError, match="multiple of num_workers"):
+        DatasetConfig(episodes=6, shard_episodes=3, num_workers=2)

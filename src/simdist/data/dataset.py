@@ -11,6 +11,7 @@ unfinished shards - nothing duplicated, nothing lost.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from dataclasses import dataclass, field
@@ -21,7 +22,7 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
-from torchrl.envs import InitTracker, TransformedEnv
+from torchrl.envs import InitTracker, ParallelEnv, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
@@ -40,6 +41,7 @@ class DatasetConfig:
     episodes: int = 32
     episode_steps: int = 250
     shard_episodes: int = 8
+    num_workers: int = 1
     pixels: bool = False
     image_size: int = 64
     dynamics_randomisation: bool = True
@@ -52,6 +54,9 @@ class DatasetConfig:
         if self.episodes < 1 or self.shard_episodes < 1 or self.episodes % self.shard_episodes:
             raise ValueError(f"episodes ({self.episodes}) must be a positive multiple of "
                              f"shard_episodes ({self.shard_episodes})")
+        if self.num_workers < 1 or self.shard_episodes % self.num_workers:
+            raise ValueError(f"shard_episodes ({self.shard_episodes}) must be a multiple of "
+                             f"num_workers ({self.num_workers})")
         if self.episode_steps < 2:
             raise ValueError("episode_steps must be >= 2")
         if not 0 <= self.final_expert_probability <= 1:
@@ -79,13 +84,18 @@ def _write_json_atomic(path: Path, payload: dict) -> None:
 
 
 def make_generation_env(cfg: DatasetConfig):
-    """The batched env a shard is rolled out in (reused across shards, reseeded each)."""
-    env = make_env(cfg.task, num_envs=cfg.shard_episodes, seed=cfg.seed, pixels=cfg.pixels,
-                   image_size=cfg.image_size, max_episode_steps=cfg.episode_steps,
-                   task_kwargs={"speeds": tuple(cfg.speeds)},
-                   dynamics_randomisation=DynamicsRandomisation()
-                   if cfg.dynamics_randomisation else None)
-    return env
+    """The env a shard is rolled out in (reused across shards, reseeded for each).
+
+    One process steps ``shard_episodes`` worlds; with ``num_workers > 1`` TorchRL's
+    ``ParallelEnv`` spreads them over worker processes (batch ``[workers, per_worker]``)
+    while the policy runs batched in this process.
+    """
+    make = functools.partial(
+        make_env, cfg.task, num_envs=cfg.shard_episodes // cfg.num_workers, seed=cfg.seed,
+        pixels=cfg.pixels, image_size=cfg.image_size, max_episode_steps=cfg.episode_steps,
+        task_kwargs={"speeds": tuple(cfg.speeds)},
+        dynamics_randomisation=DynamicsRandomisation() if cfg.dynamics_randomisation else None)
+    return make() if cfg.num_workers == 1 else ParallelEnv(cfg.num_workers, make)
 
 
 def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=(), env=None) -> TensorDict:
@@ -111,6 +121,7 @@ def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=(), env=Non
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.rollout(cfg.episode_steps, TensorDictSequential(mixture, perturb),
                          break_when_any_done=False)
+        td = td.reshape(cfg.shard_episodes, cfg.episode_steps)  # [workers, n, T] -> [E, T]
         flat = td.reshape(-1)
         td.set("value_target", expert.value(flat).reshape(*td.shape, 1))
     td.set("policy_index", td.get(("mixture", "policy")))
@@ -160,6 +171,8 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
         _write_json_atomic(meta_path, meta)
         bar.update(1)
     bar.close()
+    if env is not None:
+        env.close()
     meta.update(transitions=cfg.episodes * cfg.episode_steps,
                 bytes=sum(f.stat().st_size for f in (out / "data").rglob("*") if f.is_file()))
     _write_json_atomic(meta_path, meta)
