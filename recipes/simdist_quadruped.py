@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import torch
 from tqdm import tqdm
 
 from simdist.envs import TARGETS, describe_ranges, make_env
+from simdist.utils import StageRunner
 
 
 @dataclass
@@ -86,14 +86,18 @@ def main(argv=None):
     if unknown:
         parser.error(f"unknown targets {unknown}; valid: {sorted(TARGETS)}")
     out = Path(cfg.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    runner = StageRunner(out, cfg)  # finished stages are skipped when rerun
 
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
-    start = time.perf_counter()
-    results = {}
-    for target in tqdm(cfg.targets, desc="environment stage: domains"):
-        results[target] = evaluate(target, cfg)
-    elapsed = time.perf_counter() - start
+
+    def environment_stage(stage_dir):
+        return {target: evaluate(target, cfg)
+                for target in tqdm(cfg.targets, desc="environment stage: domains")}
+
+    if runner.done("environment"):
+        print("environment stage: already done, reusing its results")
+    results = runner.run("environment", environment_stage)
+    elapsed = runner.timings["environment"]
 
     print(f"\n{'domain':16s} {'forward progress (m)':>22s} {'return':>14s}")
     for target, r in results.items():

@@ -1,5 +1,6 @@
-"""Utilities: atomic checkpoints."""
+"""Utilities: atomic checkpoints, checkpointed recipe stages."""
 
 from simdist.utils.checkpoint import load_checkpoint, save_atomic
+from simdist.utils.stages import StageRunner
 
-__all__ = ["load_checkpoint", "save_atomic"]
+__all__ = ["load_checkpoint", "save_atomic", "StageRunner"]
