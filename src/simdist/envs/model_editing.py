@@ -27,14 +27,13 @@ class DynamicsEditor:
         >>> import mujoco
         >>> m = mujoco.MjModel.from_xml_string(
         ...     '<mujoco><worldbody><body><freejoint/><geom size=".1"/></body></worldbody></mujoco>')
-        >>> d = mujoco.MjData(m)
-        >>> editor = DynamicsEditor(m, d)
+        >>> editor = DynamicsEditor(m)
         >>> editor.apply(DynamicsParams(friction=0.5))
         >>> float(m.geom_friction[0, 0])
         0.5
     """
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData):
+    def __init__(self, model: mujoco.MjModel):
         self.model = model
         # mj_setConst overwrites the qpos of the MjData it is given: use a scratch one.
         self._scratch = mujoco.MjData(model)

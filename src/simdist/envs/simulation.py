@@ -16,7 +16,6 @@ import numpy as np
 from dm_control.rl import control
 
 from simdist.envs import tasks as task_registry
-from simdist.envs.layout import Layout
 from simdist.envs.model_editing import DynamicsEditor, VisualEditor
 from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
 from simdist.rendering import rendering_error
@@ -54,7 +53,7 @@ class Simulation:
         self.camera_id = spec.camera_id if camera_id is None else int(camera_id)
         kwargs = {**spec.defaults, **(task_kwargs or {})}
         self.physics, self.task, self.n_sub_steps = spec.build(target, seed, **kwargs)
-        self._dyn_editor = DynamicsEditor(self.physics.model.ptr, self.physics.data.ptr)
+        self._dyn_editor = DynamicsEditor(self.physics.model.ptr)
         visual = target.visual or visual
         self._vis_editor = VisualEditor(self.physics, visual, self.camera_id) \
             if (visual is not None and pixels) else None
@@ -89,6 +88,7 @@ class Simulation:
         draw = self.dynamics.sample(self._dr_rng) if self.dynamics else DynamicsParams()
         self.params = draw.compose(self.target.dynamics())
         self._dyn_editor.apply(self.params)
+        self._params_array = self.params.as_array()
         self._pending = deque([np.zeros_like(self.physics.data.ctrl)] * self.params.action_latency)
         with self.physics.reset_context():
             self.task.initialize_episode(self.physics)
@@ -127,8 +127,10 @@ class Simulation:
             self._vis_editor.randomise(self._vis_rng)
         self._read(row)
         row["reward"][0] = reward
-        row["terminated"][0] = discount is not None
-        row["truncated"][0] = self.steps >= self.max_episode_steps
+        # dm_control ends an episode with a discount: 0 is a terminal state, > 0 a cut-off.
+        row["terminated"][0] = discount is not None and discount == 0
+        row["truncated"][0] = (self.steps >= self.max_episode_steps
+                               or (discount is not None and discount > 0))
 
     def _read(self, row: dict) -> None:
         if self.spec.is_robot:
@@ -137,7 +139,7 @@ class Simulation:
             row["forward_progress"][0] = self.task.forward_progress(self.physics)
         else:
             task_registry.suite_state(self.task, self.physics, row["state"])
-        row["dynamics"][:] = self.params.as_array()
+        row["dynamics"][:] = self._params_array
         if self.pixels:
             row["pixels"][:] = self.render()
         row["terminated"][0] = False
@@ -152,7 +154,4 @@ class Simulation:
         except Exception as err:  # GL errors come in many types; name the fix.
             raise rendering_error(err) from err
         return np.ascontiguousarray(frame)  # dm_control returns a vertically flipped view
-
-    def layout(self, key: str) -> Layout:
-        return self.state_layout if key == "state" else self.observation_layout
 
