@@ -1,0 +1,5 @@
+"""Agents: own the optimisers and loops around the world models and losses."""
+
+from simdist.agents.dreamer import DreamerAgent, DreamerConfig, DreamerPolicy
+
+__all__ = ["DreamerAgent", "DreamerConfig", "DreamerPolicy"]

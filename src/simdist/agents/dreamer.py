@@ -1,0 +1,134 @@
+"""A Dreamer agent (world model + actor-critic in imagination): the TWIST teacher.
+
+The agent owns its optimisers and loops; the losses own the math. Acting is recurrent:
+the filtering state ``(belief, stoch, previous action)`` rides in the TensorDict under
+``("agent", ...)`` keys (created and reset by :meth:`DreamerAgent.make_primer`, with
+``InitTracker`` marking episode starts), so the policy works inside TorchRL rollouts,
+``ParallelEnv`` and collectors like any recurrent TorchRL policy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import TensorDictPrimer
+
+from simdist.modules import Actor, DreamerWorldModel, ScalarHead
+from simdist.modules.rssm import RSSMState
+from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss
+
+
+@dataclass
+class DreamerConfig:
+    """Dreamer hyperparameters (DreamerV2 defaults where they apply)."""
+
+    size: str = "small"
+    horizon: int = 15
+    model_lr: float = 3e-4
+    actor_lr: float = 8e-5
+    critic_lr: float = 8e-5
+    grad_clip: float = 100.0
+    exploration_noise: float = 0.3
+    entropy_coeff: float = 3e-4
+
+
+class DreamerPolicy(TensorDictModuleBase):
+    """Acts from the agent's filtered latent state; ``explore`` adds Gaussian noise."""
+
+    def __init__(self, agent: DreamerAgent, obs_key="state", explore: bool = True):
+        super().__init__()
+        self.agent, self.obs_key, self.explore = agent, obs_key, explore
+        keys = [("agent", k) for k in ("belief", "stoch", "prev_action")]
+        self.in_keys = [obs_key, "is_init", *keys]
+        self.out_keys = ["action", *[("next", *k) for k in keys]]
+
+    @torch.no_grad()
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        agent, rssm = self.agent, self.agent.world_model.rssm
+        obs = td.get(self.obs_key)
+        batch = obs.shape[: obs.dim() - agent.obs_event_dims]
+        is_init = td.get("is_init", None)
+        if is_init is None:
+            raise KeyError("DreamerPolicy needs 'is_init': add torchrl.envs.InitTracker()")
+        keep = (~is_init.reshape(*batch, 1).bool()).float()
+
+        def get(key, size):
+            value = td.get(("agent", key), None)
+            return torch.zeros(*batch, size) if value is None else value.reshape(*batch, size)
+
+        state = RSSMState(get("belief", rssm.deter_dim), get("stoch", rssm.stoch_dim))
+        embed = agent.world_model.encoder(obs)
+        state = rssm.filter_step(state, get("prev_action", rssm.action_dim), embed, keep)
+        action = agent.actor(state.features())
+        if self.explore and agent.config.exploration_noise:
+            action = (action + agent.config.exploration_noise * torch.randn_like(action)).clamp(-1, 1)
+        td.set("action", action)
+        td.set(("next", "agent", "belief"), state.belief)
+        td.set(("next", "agent", "stoch"), state.stoch)
+        td.set(("next", "agent", "prev_action"), action)
+        return td
+
+
+class DreamerAgent:
+    """World model, actor and critic with their losses and optimisers.
+
+    Examples:
+        >>> agent = DreamerAgent.for_state(state_dim=5, action_dim=1, config=DreamerConfig(size="tiny"))
+        >>> td = TensorDict({"action": torch.zeros(2, 6, 1),
+        ...     "is_init": torch.zeros(2, 6, 1, dtype=torch.bool),
+        ...     "next": {"state": torch.zeros(2, 6, 5), "reward": torch.zeros(2, 6, 1)}}, [2, 6])
+        >>> sorted(k for k in agent.update(td) if k.startswith("loss"))
+        ['loss_actor', 'loss_critic', 'loss_kl', 'loss_reconstruction', 'loss_reward']
+    """
+
+    def __init__(self, world_model: DreamerWorldModel, action_dim: int, config: DreamerConfig,
+                 obs_event_dims: int = 1, obs_key="state"):
+        self.world_model, self.config, self.obs_event_dims = world_model, config, obs_event_dims
+        feature_dim, hidden = world_model.rssm.feature_dim, world_model.rssm.input_net[0].out_features
+        self.actor = Actor(feature_dim, action_dim, hidden=hidden, layers=3)
+        self.critic = ScalarHead(feature_dim, hidden)
+        self.model_loss = DreamerWorldModelLoss(world_model)
+        self.model_loss.set_keys(observation=("next", obs_key))
+        self.behaviour_loss = DreamerActorCriticLoss(
+            world_model, self.actor, self.critic, horizon=config.horizon,
+            entropy_coeff=config.entropy_coeff)
+        self.model_optim = torch.optim.Adam(world_model.parameters(), lr=config.model_lr)
+        self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
+        self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
+        self.obs_key = obs_key
+
+    @classmethod
+    def for_state(cls, state_dim: int, action_dim: int, config: DreamerConfig = DreamerConfig()):
+        return cls(DreamerWorldModel.teacher(state_dim, action_dim, config.size), action_dim,
+                   config)
+
+    def policy(self, explore: bool = True) -> DreamerPolicy:
+        return DreamerPolicy(self, self.obs_key, explore)
+
+    def make_primer(self) -> TensorDictPrimer:
+        rssm = self.world_model.rssm
+        return TensorDictPrimer(Composite({"agent": Composite({
+            "belief": Unbounded((rssm.deter_dim,)), "stoch": Unbounded((rssm.stoch_dim,)),
+            "prev_action": Unbounded((rssm.action_dim,))})}), default_value=0.0,
+            expand_specs=True)
+
+    def _step(self, loss, optim, params) -> None:
+        optim.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(params, self.config.grad_clip)
+        optim.step()
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One world-model step, then one actor and one critic step; returns the terms."""
+        model_out = self.model_loss(batch)  # also writes ("posterior", ...) into batch
+        model_total = sum(v for k, v in model_out.items() if k.startswith("loss_"))
+        self._step(model_total, self.model_optim, list(self.world_model.parameters()))
+        behaviour = self.behaviour_loss(batch)
+        self._step(behaviour["loss_actor"], self.actor_optim, list(self.actor.parameters()))
+        self._step(behaviour["loss_critic"], self.critic_optim, list(self.critic.parameters()))
+        self.behaviour_loss.update_target()
+        return {k: v.item() for k, v in (*model_out.items(), *behaviour.items())}
