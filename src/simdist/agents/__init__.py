@@ -1,5 +1,6 @@
 """Agents: own the optimisers and loops around the world models and losses."""
 
 from simdist.agents.dreamer import DreamerAgent, DreamerConfig, DreamerPolicy
+from simdist.agents.twist import TwistConfig, TwistStudent
 
-__all__ = ["DreamerAgent", "DreamerConfig", "DreamerPolicy"]
+__all__ = ["DreamerAgent", "DreamerConfig", "DreamerPolicy", "TwistConfig", "TwistStudent"]

@@ -37,20 +37,32 @@ class DreamerConfig:
 
 
 class DreamerPolicy(TensorDictModuleBase):
-    """Acts from the agent's filtered latent state; ``explore`` adds Gaussian noise."""
+    """Filters observations with a world model's RSSM and acts with an actor on its latent.
 
-    def __init__(self, agent: DreamerAgent, obs_key="state", explore: bool = True):
+    Args:
+        world_model: supplies ``encoder`` and ``rssm``.
+        actor: maps RSSM features to actions in [-1, 1].
+        obs_key: observation read each step (``"state"``, or ``"pixels"`` for a student).
+        obs_event_dims: trailing dimensions of one observation (1 for vectors, 3 for HWC).
+        exploration_noise: std of Gaussian action noise when ``explore``.
+        explore: add the noise (collection) or not (evaluation).
+    """
+
+    def __init__(self, world_model: DreamerWorldModel, actor, obs_key="state",
+                 obs_event_dims: int = 1, exploration_noise: float = 0.0, explore: bool = True):
         super().__init__()
-        self.agent, self.obs_key, self.explore = agent, obs_key, explore
+        self.world_model, self.actor = world_model, actor
+        self.obs_key, self.obs_event_dims = obs_key, obs_event_dims
+        self.noise = exploration_noise if explore else 0.0
         keys = [("agent", k) for k in ("belief", "stoch", "prev_action")]
         self.in_keys = [obs_key, "is_init", *keys]
         self.out_keys = ["action", *[("next", *k) for k in keys]]
 
     @torch.no_grad()
     def forward(self, td: TensorDictBase) -> TensorDictBase:
-        agent, rssm = self.agent, self.agent.world_model.rssm
+        rssm = self.world_model.rssm
         obs = td.get(self.obs_key)
-        batch = obs.shape[: obs.dim() - agent.obs_event_dims]
+        batch = obs.shape[: obs.dim() - self.obs_event_dims]
         is_init = td.get("is_init", None)
         if is_init is None:
             raise KeyError("DreamerPolicy needs 'is_init': add torchrl.envs.InitTracker()")
@@ -61,11 +73,11 @@ class DreamerPolicy(TensorDictModuleBase):
             return torch.zeros(*batch, size) if value is None else value.reshape(*batch, size)
 
         state = RSSMState(get("belief", rssm.deter_dim), get("stoch", rssm.stoch_dim))
-        embed = agent.world_model.encoder(obs)
+        embed = self.world_model.encoder(obs)
         state = rssm.filter_step(state, get("prev_action", rssm.action_dim), embed, keep)
-        action = agent.actor(state.features())
-        if self.explore and agent.config.exploration_noise:
-            action = (action + agent.config.exploration_noise * torch.randn_like(action)).clamp(-1, 1)
+        action = self.actor(state.features())
+        if self.noise:
+            action = (action + self.noise * torch.randn_like(action)).clamp(-1, 1)
         td.set("action", action)
         td.set(("next", "agent", "belief"), state.belief)
         td.set(("next", "agent", "stoch"), state.stoch)
@@ -86,8 +98,8 @@ class DreamerAgent:
     """
 
     def __init__(self, world_model: DreamerWorldModel, action_dim: int, config: DreamerConfig,
-                 obs_event_dims: int = 1, obs_key="state"):
-        self.world_model, self.config, self.obs_event_dims = world_model, config, obs_event_dims
+                 obs_key="state"):
+        self.world_model, self.config = world_model, config
         feature_dim, hidden = world_model.rssm.feature_dim, world_model.rssm.input_net[0].out_features
         self.actor = Actor(feature_dim, action_dim, hidden=hidden, layers=3)
         self.critic = ScalarHead(feature_dim, hidden)
@@ -107,7 +119,8 @@ class DreamerAgent:
                    config)
 
     def policy(self, explore: bool = True) -> DreamerPolicy:
-        return DreamerPolicy(self, self.obs_key, explore)
+        return DreamerPolicy(self.world_model, self.actor, self.obs_key, 1,
+                             self.config.exploration_noise, explore)
 
     def make_primer(self) -> TensorDictPrimer:
         rssm = self.world_model.rssm

@@ -1,0 +1,82 @@
+"""TWIST student: distilled from a frozen state teacher, deployed with the teacher's actor.
+
+``TwistStudent.update`` applies Eq. 3 (latent distillation) and Eq. 4 (imagined-rollout
+alignment) to the student only; ``policy()`` filters *pixels* with the student's RSSM
+and acts with the teacher's actor on the student's latent (TWIST Sec. IV deployment).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+
+from simdist.agents.dreamer import DreamerAgent, DreamerPolicy
+from simdist.modules import DreamerWorldModel
+from simdist.objectives import ImaginedAlignmentLoss, TwistDistillationLoss
+
+
+@dataclass
+class TwistConfig:
+    """Student training settings (TWIST: slices of 50, imagination horizon 15)."""
+
+    lr: float = 3e-4
+    grad_clip: float = 100.0
+    imagined: bool = True
+    horizon: int = 15
+    action_noise_std: float = 0.3
+    max_imagination_starts: int | None = 256
+
+
+class TwistStudent:
+    """A pixel student distilled from a trained :class:`DreamerAgent` (the teacher).
+
+    Args:
+        teacher: the trained state agent; its world model and actor stay frozen.
+        student: a ``DreamerWorldModel`` with the same RSSM sizes (e.g.
+            ``DreamerWorldModel.student(action_dim, size)``).
+        config: :class:`TwistConfig`; ``imagined=False`` and ``action_noise_std=0`` give
+            the paper's two ablations.
+        pixels_key: where the randomised images are in a batch.
+    """
+
+    def __init__(self, teacher: DreamerAgent, student: DreamerWorldModel,
+                 config: TwistConfig = TwistConfig(), pixels_key=("next", "pixels")):
+        self.teacher, self.student, self.config = teacher, student, config
+        teacher_obs = ("next", teacher.obs_key)
+        self.distillation = TwistDistillationLoss(teacher.world_model, student)
+        self.distillation.set_keys(teacher_observation=teacher_obs, student_observation=pixels_key)
+        self.imagined = None
+        if config.imagined:
+            self.imagined = ImaginedAlignmentLoss(
+                teacher.world_model, student, teacher.actor, horizon=config.horizon,
+                action_noise_std=config.action_noise_std,
+                max_starts=config.max_imagination_starts)
+            self.imagined.set_keys(teacher_observation=teacher_obs,
+                                   student_observation=pixels_key)
+        self.optim = torch.optim.Adam(student.parameters(), lr=config.lr)
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One student step on ``L_distil (+ L_imagined)``; teacher parameters never move."""
+        out = self.distillation(batch)  # writes both posteriors into the batch
+        total = out["loss_distillation"]
+        terms = {k: v.item() for k, v in out.items()}
+        if self.imagined is not None:
+            imagined = self.imagined(batch)
+            total = total + imagined["loss_imagined"]
+            terms.update({k: v.item() for k, v in imagined.items()})
+        self.optim.zero_grad(set_to_none=True)
+        total.backward()
+        torch.nn.utils.clip_grad_norm_(self.student.parameters(), self.config.grad_clip)
+        self.optim.step()
+        return terms
+
+    def policy(self, explore: bool = False) -> DreamerPolicy:
+        """Pixels -> student latent -> teacher actor (uses ``self.make_primer()`` state)."""
+        return DreamerPolicy(self.student, self.teacher.actor, "pixels", obs_event_dims=3,
+                             exploration_noise=self.teacher.config.exploration_noise,
+                             explore=explore)
+
+    def make_primer(self):
+        return self.teacher.make_primer()  # same RSSM sizes, same state keys

@@ -1,0 +1,59 @@
+"""TWIST student: only the student trains; deployment runs the teacher's actor on pixels."""
+
+import copy
+
+import torch
+from torchrl.envs import InitTracker, TransformedEnv
+
+from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStudent
+from simdist.envs import VisualRandomisation, make_env
+from simdist.modules import DreamerWorldModel
+
+
+def _setup(imagined=True):
+    torch.manual_seed(0)
+    teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+    student = DreamerWorldModel.student(action_dim=1, size="tiny")
+    twist = TwistStudent(teacher, student, TwistConfig(imagined=imagined, horizon=3,
+                                                       max_imagination_starts=16))
+    env = TransformedEnv(make_env("cartpole-balance", pixels=True, seed=0, num_envs=2,
+                                  visual_randomisation=VisualRandomisation.training()),
+                         InitTracker())
+    env.append_transform(teacher.make_primer())
+    # D = {(s, o, a, r)}: the teacher acts on state while DR images are recorded
+    batch = env.rollout(10, teacher.policy(explore=True))
+    return teacher, student, twist, env, batch
+
+
+def test_updates_train_only_the_student_and_reduce_distillation():
+    teacher, student, twist, _, batch = _setup()
+    frozen = copy.deepcopy(teacher.world_model.state_dict())
+    actor = copy.deepcopy(teacher.actor.state_dict())
+    first = twist.update(batch.clone())
+    for _ in range(25):
+        last = twist.update(batch.clone())
+    assert last["loss_distillation"] < first["loss_distillation"]
+    assert "loss_imagined" in last and torch.isfinite(torch.tensor(last["loss_imagined"]))
+    for k, v in teacher.world_model.state_dict().items():
+        assert torch.equal(v, frozen[k]), k
+    for k, v in teacher.actor.state_dict().items():
+        assert torch.equal(v, actor[k]), k
+
+
+def test_ablation_without_imagination_has_no_imagined_term():
+    _, _, twist, _, batch = _setup(imagined=False)
+    assert "loss_imagined" not in twist.update(batch.clone())
+
+
+def test_deployed_policy_acts_from_pixels_with_the_teachers_actor():
+    teacher, student, twist, _, _ = _setup()
+    env = TransformedEnv(make_env("cartpole-balance", pixels=True, seed=1,
+                                  visual_randomisation=VisualRandomisation.heldout_evaluation()),
+                         InitTracker())
+    env.append_transform(twist.make_primer())
+    td = env.rollout(4, twist.policy())
+    assert td["action"].shape == (4, 1) and (td["action"].abs() <= 1).all()
+    # the latent comes from the student's filter on the frame, the action from the actor
+    expected = teacher.actor(torch.cat([td["next", "agent", "belief"],
+                                        td["next", "agent", "stoch"]], -1))
+    torch.testing.assert_close(td["action"], expected)
