@@ -1,6 +1,8 @@
 """Agents: own the optimisers and loops around the world models and losses."""
 
 from simdist.agents.dreamer import DreamerAgent, DreamerConfig, DreamerPolicy
+from simdist.agents.simdist import SimDistAgent, SimDistConfig, SimDistPolicy
 from simdist.agents.twist import TwistConfig, TwistStudent
 
-__all__ = ["DreamerAgent", "DreamerConfig", "DreamerPolicy", "TwistConfig", "TwistStudent"]
+__all__ = ["DreamerAgent", "DreamerConfig", "DreamerPolicy", "TwistConfig", "TwistStudent",
+           "SimDistAgent", "SimDistConfig", "SimDistPolicy"]

@@ -113,6 +113,8 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         seed: seeds the sampling noise (deterministic plans).
         compile: ``torch.compile`` the planning loop (``mode="reduce-overhead"`` on CUDA
             uses CUDA graphs). Eager by default.
+        action_bounds: per-dimension ``(low, high)`` tensors (e.g. an env's action spec),
+            overriding the config's scalar bounds.
 
     Examples:
         >>> from tensordict import TensorDict
@@ -128,7 +130,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
     def __init__(self, dynamics, reward, value, action_dim: int,
                  config: PlannerConfig = PlannerConfig(), policy=None, seed: int = 0,
                  compile: bool = False, latent_key="latent", action_key="action",
-                 is_init_key="is_init"):
+                 is_init_key="is_init", action_bounds=None):
         super().__init__()
         self.config, self.action_dim = config, int(action_dim)
         self.latent_key, self.action_key, self.is_init_key = latent_key, action_key, is_init_key
@@ -142,6 +144,15 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         self._dynamics, self._reward = _as_function(dynamics), _as_function(reward)
         self._value = _as_function(value) if value is not None else None
         self._policy = _as_function(policy) if policy is not None else None
+        low, high = action_bounds if action_bounds is not None else (
+            torch.full((self.action_dim,), config.action_low),
+            torch.full((self.action_dim,), config.action_high))
+        low, high = torch.as_tensor(low, dtype=torch.float32), torch.as_tensor(high, dtype=torch.float32)
+        if low.shape != (self.action_dim,) or high.shape != (self.action_dim,) or (low >= high).any():
+            raise ValueError(f"action_bounds must be two ({self.action_dim},) tensors with "
+                             f"low < high, got {low} and {high}")
+        self.register_buffer("action_low", low)
+        self.register_buffer("action_high", high)
         self.generator_seed = seed
         self._generator = None
         self.register_buffer("_previous_mean", torch.zeros(0), persistent=False)
@@ -203,7 +214,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         out = []
         for t in range(c.horizon):
             a = self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
-            a = a.clamp(c.action_low, c.action_high)
+            a = a.clamp(self.action_low, self.action_high)
             out.append(a)
             z = self._dynamics(z, a)
         return torch.stack(out, 1).reshape(B, P, c.horizon, -1)
@@ -216,7 +227,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
                      if policy_noise is not None else None)
         for i in range(c.iterations):
             actions = (mean[:, None] + std[:, None] * sample_noise[i]).clamp(
-                c.action_low, c.action_high)
+                self.action_low, self.action_high)
             if proposals is not None:
                 actions = torch.cat([proposals, actions], 1)
             scores, rewards, values = self._evaluate(latent, actions)
@@ -229,7 +240,8 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             spread = (elite_scores[:, :1] - elite_scores[:, -1:]).clamp_min(1e-6)
             weights = torch.softmax((elite_scores - elite_scores[:, :1]) / (spread * c.temperature), 1)
             w = weights[..., None, None]
-            mean = (w * elites).sum(1)
+            # A convex combination stays in bounds up to rounding: clamp to make it exact.
+            mean = (w * elites).sum(1).clamp(self.action_low, self.action_high)
             std = ((w * (elites - mean[:, None]).pow(2)).sum(1)).sqrt().clamp(c.min_std, c.max_std)
         # Predictions along the best elite of the last iteration (no extra model pass).
         best = index[:, 0]

@@ -152,14 +152,22 @@ class DynamicsFinetuneLoss(SimdistLoss):
         return list(self.world_model.dynamics.parameters())
 
     def forward(self, td: TensorDictBase) -> TensorDict:
+        return self._consistency(td, freeze_encoder=True)
+
+    def consistency_all_parts(self, td: TensorDictBase) -> TensorDict:
+        """The same consistency term with gradients into the encoder too (an ablation:
+        "finetune the whole world model"; targets stay stop-gradient)."""
+        return self._consistency(td, freeze_encoder=False)
+
+    def _consistency(self, td: TensorDictBase, freeze_encoder: bool) -> TensorDict:
         B, T = sequence_batch(td)
         wm, H = self.world_model, self.horizon
         is_init = self.read_flag(td, "is_init", (B, T))
         action = self.read(td, "action")
-        with torch.no_grad():  # frozen by construction: the encoder builds no graph
+        with torch.set_grad_enabled(not freeze_encoder):  # frozen: the encoder builds no graph
             latents = wm.encode_sequence(self.read(td, "observation"), is_init)
         predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
-        consistency = masked_mean((predicted - targets).pow(2).mean(-1), mask)
+        consistency = masked_mean((predicted - targets.detach()).pow(2).mean(-1), mask)
         with torch.no_grad():
             S = T - H
             act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
