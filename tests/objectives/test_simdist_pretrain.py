@@ -123,3 +123,18 @@ def test_non_finite_loss_is_an_error():
     td["value_target"][0, 0] = float("inf")
     with pytest.raises(FloatingPointError, match="loss_value"):
         loss(td)
+
+
+def test_windows_cut_off_by_the_slice_are_not_trained_on():
+    from simdist.objectives.simdist_pretrain import complete_windows
+    is_init = torch.zeros(2, 6, dtype=torch.bool)
+    is_init[1, 1] = True  # second slice: an episode starts at step 1
+    ok = complete_windows(is_init, history=3)
+    assert ok[0].tolist() == [False, False, True, True, True, True]
+    assert ok[1].tolist() == [False, True, True, True, True, True]
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(obs_dim=4, action_dim=2, size="tiny", history=3)
+    z = torch.rand(2, 6, wm.latent_dim)
+    _, _, mask = rollout_windows(wm, z, torch.zeros(2, 6, 2), is_init, horizon=2)
+    assert mask[0, :2].sum() == 0 and mask[0, 2:].min() == 1  # mid-episode slice
+    assert mask[1, 0].sum() == 0  # start 0 precedes the episode start (and would cross it)

@@ -16,9 +16,10 @@ def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: to
                     is_init: torch.Tensor, horizon: int):
     """Predicts ``horizon`` latents from every start of ``[B, T]`` slices in parallel.
 
-    Returns ``(predicted [B, S, H, L], targets [B, S, H, L], mask [B, S, H], starts)`` with
+    Returns ``(predicted [B, S, H, L], targets [B, S, H, L], mask [B, S, H])`` with
     ``S = T - horizon`` starts; ``mask`` drops targets on or after an episode start
-    (the rollout would cross the boundary).
+    (the rollout would cross the boundary) and every start or target whose encoder window
+    would reach before the slice (see :func:`complete_windows`).
     """
     B, T, L = latents.shape
     S = T - horizon
@@ -30,7 +31,23 @@ def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: to
     targets = latents.unfold(1, horizon, 1)[:, 1:S + 1].transpose(-1, -2)   # [B, S, H, L]
     crosses = is_init.unfold(1, horizon, 1)[:, 1:S + 1]                     # [B, S, H]
     mask = torch.cumprod((~crosses).to(latents.dtype), -1)
-    return predicted, targets, mask
+    complete = complete_windows(is_init, model.encoder.history).to(latents.dtype)
+    target_ok = complete.unfold(1, horizon, 1)[:, 1:S + 1]
+    return predicted, targets, mask * complete[:, :S, None] * target_ok
+
+
+def complete_windows(is_init: torch.Tensor, history: int) -> torch.Tensor:
+    """``[B, T]``: whether step ``t``'s encoder window is what the robot would see.
+
+    A window is complete when it fits inside the slice (``t >= history - 1``) or an
+    episode starts at or before ``t`` inside the slice (then its clamped window is exactly
+    the deployment one). Otherwise the slice cut off real history, and training on it
+    would teach the encoder windows it never sees when deployed.
+    """
+    T = is_init.shape[1]
+    fits = torch.arange(T, device=is_init.device) >= history - 1
+    started = torch.cummax(is_init.to(torch.int8), 1).values.bool()
+    return fits[None] | started
 
 
 def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -99,13 +116,15 @@ class SimDistPretrainLoss(SimdistLoss):
         consistency = masked_mean((predicted - targets.detach()).pow(2).mean(-1), mask)
         # Reward and value on z^_{t+i}, i = 0..H-1: the start latent then the predictions.
         path = torch.cat([latents[:, :S, None], predicted[:, :, :-1]], 2)      # [B, S, H, L]
-        path_mask = torch.cat([torch.ones_like(mask[..., :1]), mask[..., :-1]], -1)
+        start_ok = complete_windows(is_init, wm.encoder.history)[:, :S, None].to(mask.dtype)
+        path_mask = torch.cat([start_ok, mask[..., :-1]], -1)
         act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)
         reward_t = self.read(td, "reward").unfold(1, H, 1)[:, :S].transpose(-1, -2)
         value_t = self.read(td, "value_target").unfold(1, H, 1)[:, :S].transpose(-1, -2)
         reward = masked_mean((wm.reward(path, act) - reward_t).pow(2).squeeze(-1), path_mask)
         value = masked_mean((wm.value(path) - value_t).pow(2).squeeze(-1), path_mask)
         expert = self.read_flag(td, "expert_active", (B, T)).to(latents.dtype)
+        expert = expert * complete_windows(is_init, wm.encoder.history).to(latents.dtype)
         bc = masked_mean((wm.policy(latents) - action).pow(2).mean(-1), expert)
         w = self.weights
         return self.finish(TensorDict({
