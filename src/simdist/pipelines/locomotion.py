@@ -1,0 +1,67 @@
+"""Building blocks of the SimDist quadruped pipeline: evaluate, collect, pretrain, finetune.
+
+Each is a plain function over the library's parts, so the recipe reads top to bottom and
+users can recombine the steps (e.g. another target, another policy).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
+from torchrl.envs import InitTracker, TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm import tqdm
+
+from simdist.envs import make_env
+from simdist.envs.quadruped import CONTROL_TIMESTEP
+
+
+def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), task="quadruped-flat",
+                   speeds=(0.25, 0.5, 0.75)):
+    """A batched quadruped env (one world per episode) with ``InitTracker`` and primers."""
+    env = TransformedEnv(make_env(task, target=target, num_envs=episodes, seed=seed,
+                                  max_episode_steps=steps, task_kwargs={"speeds": tuple(speeds)}),
+                         InitTracker())
+    for primer in primers:
+        env.append_transform(primer)
+    return env
+
+
+def rollout(env, policy, steps: int) -> TensorDict:
+    """``[episodes, steps]`` of one episode per world, deterministic exploration mode."""
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        return env.rollout(steps, policy, break_when_any_done=False)
+
+
+def progress_stats(td: TensorDict, command_index: int) -> dict:
+    """Forward progress per episode (m) and as a fraction of the commanded distance."""
+    progress = td["next", "forward_progress"][:, -1, 0]
+    command = td["observation"][:, 0, command_index]
+    distance = command * td.shape[1] * CONTROL_TIMESTEP
+    fraction = (progress / distance).numpy()
+    metres = progress.numpy()
+    return {"progress_m": metres.tolist(), "fraction": fraction.tolist(),
+            "mean_m": float(np.mean(metres)), "std_m": float(np.std(metres)),
+            "mean_fraction": float(np.mean(fraction)), "std_fraction": float(np.std(fraction)),
+            "return": float(td["next", "reward"].sum(1).mean())}
+
+
+def as_slices(td: TensorDict, slice_len: int, batch_slices: int) -> TensorDictReplayBuffer:
+    """An in-memory buffer of ``[episodes, steps]`` data that samples episode-safe slices."""
+    episodes, steps = td.shape
+    data = td.clone()
+    data.set("episode", torch.arange(episodes)[:, None].expand(episodes, steps).clone())
+    sampler = SliceSampler(slice_len=slice_len, traj_key="episode", strict_length=True)
+    return TensorDictReplayBuffer(storage=TensorStorage(data.reshape(-1)), sampler=sampler,
+                                  batch_size=slice_len * batch_slices)
+
+
+def train(update, buffer, updates: int, slice_len: int, desc: str, progress: bool = True) -> list:
+    """Calls ``update(batch)`` on ``updates`` sampled ``[slices, slice_len]`` batches."""
+    history = []
+    for _ in tqdm(range(updates), desc=desc, disable=not progress):
+        batch = buffer.sample().reshape(-1, slice_len)
+        history.append(update(batch))
+    return history

@@ -1,0 +1,37 @@
+"""The SimDist chain on tiny budgets: dataset -> pretrain -> plan in a target -> finetune."""
+
+import torch
+
+from simdist.agents import SimDistAgent, SimDistConfig
+from simdist.data import DatasetConfig, generate_dataset, load_dataset
+from simdist.envs import get_target
+from simdist.experts import Expert
+from simdist.modules import SimDistWorldModel
+from simdist.modules.planner import PlannerConfig
+from simdist.pipelines import as_slices, locomotion_env, progress_stats, rollout, train
+
+
+def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
+    torch.manual_seed(0)
+    expert = Expert.untrained(89, 12, hidden=16)
+    data = generate_dataset(DatasetConfig(episodes=4, shard_episodes=4, episode_steps=20),
+                            tmp_path / "data", expert, progress=False)
+    agent = SimDistAgent(SimDistWorldModel.build(89, 12, size="tiny", history=2),
+                         SimDistConfig(horizon=3))
+    train(agent.pretrain_update, load_dataset(data, slice_len=6, batch_size=24), updates=3,
+          slice_len=6, desc="pretrain", progress=False)
+    env = locomotion_env(get_target("slippery_slope"), episodes=2, steps=8, seed=1,
+                         primers=[agent.make_primer()])
+    spec = env.action_spec
+    policy = agent.policy(spec.space.low[0], spec.space.high[0],
+                          PlannerConfig(horizon=3, num_samples=16, num_elites=4, iterations=1))
+    target_data = rollout(env, policy, steps=8)
+    command = env.base_env.observation_layout["command"].start
+    stats = progress_stats(target_data, command_index=command)
+    assert (target_data["observation"][:, 0, command] > 0).all()
+    assert len(stats["progress_m"]) == 2 and abs(stats["mean_fraction"]) < 10
+    frozen = {k: v.clone() for k, v in agent.world_model.state_dict().items() if not k.startswith("dynamics")}
+    train(agent.finetune_update, as_slices(target_data, slice_len=5, batch_slices=2), updates=2,
+          slice_len=5, desc="finetune", progress=False)
+    assert all(torch.equal(v, frozen[k]) for k, v in agent.world_model.state_dict().items()
+               if not k.startswith("dynamics"))
