@@ -119,6 +119,18 @@ class Expert:
         probe = self.act(td.select("observation").clone())
         return self.critic(probe)["state_action_value"]
 
+    def save(self, path: str | Path, obs_dim: int, config: SACExpertConfig, snapshots=None,
+             curve=(), frames: int = 0) -> Path:
+        """Writes a weights-only ``expert.pt`` that :meth:`load` reads back."""
+        path = Path(path)
+        save_atomic({
+            "actor": {k: v.detach().clone() for k, v in self.actor.state_dict().items()},
+            "critic": {k: v.detach().clone() for k, v in self.critic.state_dict().items()},
+            "snapshots": dict(snapshots or {}), "curve": list(curve), "frames": frames,
+            "obs_dim": obs_dim, "action_low": self._low.clone(), "action_high": self._high.clone(),
+            "config": dataclasses.asdict(config)}, path)
+        return path
+
     @classmethod
     def load(cls, path: str | Path, snapshot: str | None = None) -> Expert:
         """Loads ``expert.pt`` (the final policy, or a named earlier ``snapshot``)."""
@@ -213,15 +225,12 @@ def train_sac_expert(cfg: SACExpertConfig, out_dir: str | Path, progress: bool =
 
 def _export(out_dir, cfg, loss, state, obs_dim, action_spec) -> Path:
     """Writes the small deployable ``expert.pt`` (actor, critic, snapshots, curve)."""
-    path = out_dir / "expert.pt"
-    payload = {
-        "actor": {k: v for k, v in _actor_state(loss).items()},
-        "critic": _critic_state(loss),
-        "snapshots": state["snapshots"], "curve": state["curve"], "frames": state["frames"],
-        "obs_dim": obs_dim, "action_low": action_spec.space.low.clone(),
-        "action_high": action_spec.space.high.clone(), "config": dataclasses.asdict(cfg),
-    }
-    save_atomic(payload, path)
+    actor = make_actor(obs_dim, action_spec, cfg.hidden)
+    critic = make_critic(obs_dim, action_spec.shape[-1], cfg.hidden)
+    actor.load_state_dict(_actor_state(loss))
+    critic.load_state_dict(_critic_state(loss))
+    path = Expert(actor, critic).save(out_dir / "expert.pt", obs_dim, cfg, state["snapshots"],
+                                      state["curve"], state["frames"])
     (out_dir / "training_curve.json").write_text(json.dumps(state["curve"], indent=2))
     return path
 
