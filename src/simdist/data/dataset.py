@@ -5,7 +5,9 @@ Layout: ``<dir>/data`` is a memory-mapped TensorDict of shape ``[episodes, steps
 library versions, counts and the shards completed so far. A shard is a batch of
 ``shard_episodes`` episodes generated from its own seed, so it is the same whenever it
 is generated: a killed run, rerun with the same command, regenerates exactly the
-unfinished shards - nothing duplicated, nothing lost.
+unfinished shards - nothing duplicated, nothing lost. (Rows are written through the
+memory map before a shard is listed as done; a killed process leaves them in the page
+cache, so only a machine crash could lose a listed shard.)
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import shutil
 import time
 from dataclasses import dataclass, field
 from importlib import metadata as importlib_metadata
@@ -148,13 +151,16 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
         data = TensorDict.load_memmap(out / "data")
     else:
         out.mkdir(parents=True, exist_ok=True)
+        if (out / "data").exists():  # a run killed before its first shard was recorded
+            shutil.rmtree(out / "data")
+        start = time.perf_counter()
         env = make_generation_env(cfg)
         first = generate_shard(cfg, 0, expert, snapshots, env)
         template = first[:1].expand(cfg.episodes, *first.shape[1:])
         data = template.memmap_like(out / "data")
         data[: cfg.shard_episodes] = first
         meta = {"config": json.loads(json.dumps(config, default=str)), "versions": _versions(),
-                "shards_done": [0], "seconds": 0.0}
+                "shards_done": [0], "seconds": time.perf_counter() - start}
         _write_json_atomic(meta_path, meta)
     todo = [s for s in range(cfg.shards) if s not in meta["shards_done"]]
     if todo and env is None:
