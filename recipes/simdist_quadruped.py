@@ -1,15 +1,24 @@
 """SimDist on the quadruped: pretrain in simulation, plan, finetune dynamics on target data.
 
-Status: the expert stages run (load or retrain the state-based SAC expert; measure its
-zero-shot transfer to every target domain). Dataset, world-model pretraining, latent MPPI
-deployment and dynamics-only finetuning rounds are wired in by the SimDist pipeline issue;
-their parts already exist (`simdist.data`, `simdist.agents.SimDistAgent`,
-`simdist.pipelines`). Stages are checkpointed: rerunning skips finished ones.
+Stages (each checkpointed under ``--output-dir``; rerunning skips finished stages and a
+killed stage resumes from its last checkpoint):
+
+1. ``expert``: load the committed state-based SAC expert (or retrain it on request);
+   ``expert_zero_shot`` measures its transfer to every named domain.
+2. ``dataset``: a perturbed-expert dataset on disk (mixture of final and earlier
+   policies, SimDist's burst/pause action noise, expert-critic value labels).
+3. ``pretrain``: the SimDist world model (history encoder on robot-measurable
+   observations only, latent dynamics, reward, value, policy prior) on that dataset.
+4. ``zero_shot``: latent MPPI with the pretrained model, in simulation and in the target.
+5. ``round_k``: collect target data with the current planner, then finetune **only the
+   dynamics** (SimDist) and evaluate; the same data also finetunes the whole world model
+   (ablation) and continues the expert's SAC (policy-finetuning baseline).
 
 Usage:
-    python recipes/simdist_quadruped.py                  # small CPU default
+    python recipes/simdist_quadruped.py                  # small CPU default (~30 min)
     python recipes/simdist_quadruped.py --preset tiny    # seconds, used by the tests
-    python recipes/simdist_quadruped.py --targets slippery_slope foam --episodes 9
+    python recipes/simdist_quadruped.py --target foam --episodes 9
+    python recipes/simdist_quadruped.py --preset paper   # reference scales, for a GPU
     python recipes/simdist_quadruped.py --retrain-expert # hours on 2 CPU cores
 """
 
@@ -22,15 +31,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
-import numpy as np
+import torch
+from tensordict import TensorDict
 from tqdm import tqdm
 
+from simdist.agents import SimDistAgent, SimDistConfig
+from simdist.data import DatasetConfig, generate_dataset, load_dataset
 from simdist.envs import TARGETS, describe_ranges, get_target
 from simdist.experts import Expert, SACExpertConfig, train_sac_expert
-from simdist.pipelines import locomotion_env, progress_stats, rollout
-from simdist.utils import StageRunner
+from simdist.modules import SimDistWorldModel, StateDecoder
+from simdist.objectives import ProbeLoss
+from simdist.modules.planner import PlannerConfig
+from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
+                               mean_metrics, progress_stats, rollout, train_resumable)
+from simdist.pipelines.report import plot_results, print_table
+from simdist.utils import StageRunner, load_checkpoint, save_atomic
+from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
+STEPS_PER_MINUTE = 50 * 60  # 50 Hz control
+TARGET_KEYS = ["observation", "action", "is_init", ("next", "observation"),
+               ("next", "reward"), ("next", "done"), ("next", "terminated")]
 
 
 @dataclass
@@ -38,24 +59,64 @@ class Config:
     """Flat recipe config; presets below override fields. Saved as ``config.json``."""
 
     task: str = "quadruped-flat"
+    target: str = "slippery_slope"
     expert: str = DEFAULT_EXPERT
     retrain_expert: bool = False
     expert_frames: int = SACExpertConfig.total_frames
-    targets: list[str] = field(default_factory=lambda: ["sim", "slippery_slope", "foam",
-                                                         "payload", "weak_motors"])
-    episodes: int = 6
-    episode_steps: int = 250  # 5 s at 50 Hz
+    expert_targets: list[str] = field(default_factory=lambda: [
+        "sim", "slippery_slope", "foam", "payload", "weak_motors"])
+    episodes: int = 6            # evaluation episodes per point (batched worlds)
+    episode_steps: int = 250     # 5 s at 50 Hz
     seed: int = 0
+    # dataset
+    dataset_episodes: int = 384
+    dataset_shard_episodes: int = 32
+    dataset_workers: int = 1
+    # world model
+    model_size: str = "small"
+    model_horizon: int = 5
+    pretrain_updates: int = 3000
+    probe_updates: int = 1000    # visualisation only (rerun recordings)
+    value_weight: float = 1e-3   # value labels are ~100x a step's reward (gamma 0.99)
+    slice_len: int = 16
+    batch_slices: int = 32
+    # planner
+    planner_horizon: int = 5
+    planner_samples: int = 64
+    planner_iterations: int = 3
+    planner_elites: int = 8
+    # target rounds: cumulative minutes of 50 Hz target data after each round
+    budgets_min: list[float] = field(default_factory=lambda: [1.0, 2.0, 4.0])
+    collect_episodes: int = 12   # worlds stepped at once while collecting
+    finetune_updates: int = 600  # per round, for every method (same data, same updates)
+    finetune_lr: float = 1e-4
+    sac_batch_size: int = 256
     output_dir: str = "outputs/simdist_quadruped"
+
+    def planner(self) -> PlannerConfig:
+        return PlannerConfig(horizon=self.planner_horizon, num_samples=self.planner_samples,
+                             iterations=self.planner_iterations, num_elites=self.planner_elites)
 
 
 PRESETS = {
     "default": {},
-    "tiny": {"episodes": 2, "episode_steps": 20, "targets": ["sim", "slippery_slope"]},
-    "paper": {"episodes": 15, "episode_steps": 500},
+    "tiny": {"episodes": 2, "episode_steps": 20, "expert_targets": ["sim", "slippery_slope"],
+             "dataset_episodes": 4, "dataset_shard_episodes": 2, "model_size": "tiny",
+             "model_horizon": 3, "pretrain_updates": 4, "slice_len": 8, "batch_slices": 4,
+             "planner_horizon": 3, "planner_samples": 16, "planner_iterations": 1,
+             "planner_elites": 4, "budgets_min": [0.02, 0.04], "collect_episodes": 2,
+             "finetune_updates": 3, "sac_batch_size": 16, "probe_updates": 3},
+    "paper": {"episodes": 15, "episode_steps": 500, "dataset_episodes": 8192,
+              "dataset_shard_episodes": 64, "dataset_workers": 4, "model_size": "paper",
+              "model_horizon": 25, "pretrain_updates": 100_000, "slice_len": 50,
+              "batch_slices": 16, "planner_horizon": 25, "planner_samples": 450,
+              "planner_iterations": 8, "planner_elites": 64,
+              "budgets_min": [16.0, 27.0, 36.0], "collect_episodes": 32,
+              "finetune_updates": 5000},
 }
 
 
+# -- stages -----------------------------------------------------------------------------
 def expert_stage(cfg: Config, stage_dir: Path) -> dict:
     """Loads the committed expert, or retrains it (resumable) when asked."""
     path = Path(cfg.expert)
@@ -66,80 +127,277 @@ def expert_stage(cfg: Config, stage_dir: Path) -> dict:
         raise FileNotFoundError(
             f"no expert checkpoint at {path}: train one with `python recipes/train_expert.py` "
             "or rerun this recipe with --retrain-expert")
-    expert = Expert.load(path)  # fails clearly on a corrupt or incompatible file
-    del expert
+    Expert.load(path)  # fails clearly on a corrupt or incompatible file
     return {"path": str(path)}
 
 
-def zero_shot_stage(cfg: Config, expert_path: str) -> dict:
-    """The expert's forward progress in simulation and in each target domain."""
+def evaluate(cfg: Config, target: str, policy, primers=(), seed_offset: int = 10_000) -> dict:
+    """Forward progress of ``policy`` over ``cfg.episodes`` episodes in ``target``.
+
+    Every method is evaluated on the same seeds (same initial states and speeds).
+    """
+    env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
+                         cfg.seed + seed_offset, primers=primers, task=cfg.task)
+    command = env.base_env.observation_layout["command"].start
+    stats = progress_stats(rollout(env, policy, cfg.episode_steps), command)
+    env.close()
+    return stats
+
+
+def expert_zero_shot_stage(cfg: Config, expert_path: str) -> dict:
     policy = Expert.load(expert_path).deterministic()
-    results = {}
-    for target in tqdm(cfg.targets, desc="expert zero-shot: domains"):
-        env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps, cfg.seed)
-        command = env.base_env.observation_layout["command"].start
-        results[target] = progress_stats(rollout(env, policy, cfg.episode_steps), command)
+    return {t: evaluate(cfg, t, policy) for t in tqdm(cfg.expert_targets, desc="expert zero-shot")}
+
+
+def dataset_stage(cfg: Config, expert_path: str, stage_dir: Path) -> dict:
+    snapshots = sorted(load_checkpoint(expert_path)["snapshots"])
+    earlier = [Expert.load(expert_path, snapshot=s) for s in snapshots]
+    data_cfg = DatasetConfig(task=cfg.task, episodes=cfg.dataset_episodes,
+                             episode_steps=cfg.episode_steps,
+                             shard_episodes=cfg.dataset_shard_episodes,
+                             num_workers=cfg.dataset_workers, seed=cfg.seed)
+    path = generate_dataset(data_cfg, stage_dir / "data", Expert.load(expert_path), earlier)
+    meta = json.loads((path / "meta.json").read_text())
+    return {"path": str(path), "transitions": meta["transitions"], "bytes": meta["bytes"],
+            "generation_s": meta["seconds"]}
+
+
+def new_agent(cfg: Config, obs_dim: int, action_dim: int) -> SimDistAgent:
+    wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size)
+    return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
+                                          finetune_lr=cfg.finetune_lr,
+                                          value_weight=cfg.value_weight))
+
+
+def pretrain_stage(cfg: Config, dataset: str, stage_dir: Path) -> dict:
+    torch.manual_seed(cfg.seed)
+    buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
+    obs = buffer.storage._storage["observation"]
+    agent = new_agent(cfg, obs.shape[-1], buffer.storage._storage["action"].shape[-1])
+    flat = obs.reshape(-1, obs.shape[-1])
+    agent.world_model.encoder.set_normalisation(flat.mean(0), flat.std(0))
+    history = train_resumable(
+        agent.pretrain_update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
+        cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim},
+        stage_dir / "training.pt", desc="pretrain world model")
+    save_atomic(agent.world_model.state_dict(), stage_dir / "world_model.pt")
+    return {"path": str(stage_dir / "world_model.pt"), "obs_dim": obs.shape[-1],
+            "action_dim": buffer.storage._storage["action"].shape[-1],
+            "first": mean_metrics(history[:50], 50), "last": mean_metrics(history)}
+
+
+def load_agent(cfg: Config, pretrained: dict, path: str | None = None) -> SimDistAgent:
+    agent = new_agent(cfg, pretrained["obs_dim"], pretrained["action_dim"])
+    agent.world_model.load_state_dict(load_checkpoint(path or pretrained["path"]))
+    return agent
+
+
+def evaluate_planner(cfg: Config, agent: SimDistAgent, target: str,
+                     seed_offset: int = 10_000) -> tuple[dict, TensorDict]:
+    """Plans with ``agent``'s world model in ``target``; returns stats and the rollout."""
+    env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
+                         cfg.seed + seed_offset, primers=[agent.make_primer()], task=cfg.task)
+    spec = env.action_spec
+    policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
+    td = rollout(env, policy, cfg.episode_steps)
+    stats = progress_stats(td, env.base_env.observation_layout["command"].start)
+    env.close()
+    return stats, td
+
+
+def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int) -> TensorDict:
+    """``steps`` transitions in the target (whole episodes) from the agent's planner."""
+    episodes = max(1, round(steps / cfg.episode_steps))
+    batches = []
+    for start in range(0, episodes, cfg.collect_episodes):
+        n = min(cfg.collect_episodes, episodes - start)
+        env = locomotion_env(get_target(cfg.target), n, cfg.episode_steps, seed + start,
+                             primers=[agent.make_primer()], task=cfg.task)
+        spec = env.action_spec
+        policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(),
+                              seed=seed + start)
+        batches.append(rollout(env, policy, cfg.episode_steps).select(*TARGET_KEYS))
         env.close()
+    return torch.cat(batches, 0)
+
+
+def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_dir: Path,
+                previous: dict | None) -> dict:
+    """One round: collect with the current SimDist planner, finetune all methods, evaluate."""
+    budget = round(cfg.budgets_min[k] * STEPS_PER_MINUTE)
+    done_before = previous["target_steps"] if previous else 0
+    simdist_agent = load_agent(cfg, pretrained, previous and previous["simdist"])
+    data_dir = stage_dir / "data"
+    if not (data_dir / "meta.json").exists():  # memmap is written last-to-first: meta last
+        fresh = collect_target_data(cfg, simdist_agent, budget - done_before,
+                                    seed=cfg.seed + 1000 * (k + 1))
+        fresh.memmap(data_dir)
+    fresh = TensorDict.load_memmap(data_dir)
+    parts = [TensorDict.load_memmap(Path(p)) for p in (previous["data"] if previous else [])]
+    data = torch.cat([*parts, fresh], 0)
+    buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+    sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731
+    results = {"target_steps": done_before + fresh.numel(),
+               "data": [*(previous["data"] if previous else []), str(data_dir)]}
+
+    # SimDist: dynamics only, continuing from the previous round's dynamics.
+    hist = train_resumable(simdist_agent.finetune_update, sample, cfg.finetune_updates,
+                           {"wm": simdist_agent.world_model, "opt": simdist_agent.finetune_optim},
+                           stage_dir / "simdist.ckpt", desc=f"round {k + 1}: finetune dynamics")
+    save_atomic(simdist_agent.world_model.state_dict(), stage_dir / "simdist.pt")
+    results["simdist"] = str(stage_dir / "simdist.pt")
+    results["simdist_eval"], _ = evaluate_planner(cfg, simdist_agent, cfg.target)
+    results["simdist_loss"] = mean_metrics(hist)
+
+    # Ablation: the whole world model on the same data, same number of updates.
+    whole = load_agent(cfg, pretrained, previous and previous["whole"])
+    hist = train_resumable(whole.finetune_whole_update, sample, cfg.finetune_updates,
+                           {"wm": whole.world_model, "opt": whole.whole_optim},
+                           stage_dir / "whole.ckpt", desc=f"round {k + 1}: finetune whole model")
+    save_atomic(whole.world_model.state_dict(), stage_dir / "whole.pt")
+    results["whole"] = str(stage_dir / "whole.pt")
+    results["whole_eval"], _ = evaluate_planner(cfg, whole, cfg.target)
+    results["whole_loss"] = mean_metrics(hist)
+
+    # Baseline: continue the expert's SAC on the same target data.
+    sac = OfflineSAC(Expert.load(expert_path),
+                     OfflineSACConfig(batch_size=cfg.sac_batch_size, seed=cfg.seed))
+    if previous:
+        sac.load_state_dict(load_checkpoint(previous["sac"])["state"]["sac"])
+    sac_buffer = sac.buffer(data)
+    hist = train_resumable(sac.update, sac_buffer.sample, cfg.finetune_updates, {"sac": sac},
+                           stage_dir / "sac.ckpt", desc=f"round {k + 1}: continue expert SAC")
+    results["sac"] = str(stage_dir / "sac.ckpt")
+    results["sac_eval"] = evaluate(cfg, cfg.target, sac.expert().deterministic())
+    results["sac_loss"] = mean_metrics(hist)
     return results
 
 
+def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path) -> dict:
+    """A decoder latent -> privileged state on frozen pretrained latents (for pictures).
+
+    Dynamics-only finetuning leaves the encoder unchanged, so the probe stays valid for
+    every SimDist round.
+    """
+    agent = load_agent(cfg, pretrained)
+    buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
+    state_dim = buffer.storage._storage["state"].shape[-1]
+    probe = StateDecoder(agent.world_model.latent_dim, state_dim, hidden=256, layers=2)
+    loss = ProbeLoss(agent.world_model.encode_sequence, probe)
+    optim = torch.optim.Adam(loss.trainable_parameters(), lr=1e-3)
+
+    def update(batch):
+        out = loss(batch)
+        optim.zero_grad(set_to_none=True)
+        out["loss_probe"].backward()
+        optim.step()
+        return {"loss_probe": out["loss_probe"].item()}
+
+    history = train_resumable(update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
+                              cfg.probe_updates, {"probe": probe, "optim": optim},
+                              stage_dir / "training.pt", desc="probe decoder")
+    save_atomic(probe.state_dict(), stage_dir / "probe.pt")
+    return {"path": str(stage_dir / "probe.pt"), "state_dim": state_dim,
+            "loss": mean_metrics(history)}
+
+
+def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out: Path) -> dict:
+    """rerun recordings of one target episode before and after dynamics finetuning."""
+    paths = {}
+    for label, weights_path in (("before", None), ("after", final["simdist"])):
+        agent = load_agent(cfg, pretrained, weights_path)
+        probe_net = StateDecoder(agent.world_model.latent_dim, probe["state_dim"], hidden=256,
+                                 layers=2)
+        probe_net.load_state_dict(load_checkpoint(probe["path"]))
+        env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, cfg.seed + 10_000,
+                             primers=[agent.make_primer()], task=cfg.task)
+        spec = env.action_spec
+        policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
+        paths[label] = record_planning_episode(env, policy, probe_net,
+                                               str(out / f"rerun_{label}.rrd"), cfg.episode_steps,
+                                               application_id=f"simdist_{label}_finetuning")
+        env.close()
+    return paths
+
+
+# -- the recipe -------------------------------------------------------------------------
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
-    parser.add_argument("--targets", nargs="+", help=f"any of {sorted(TARGETS)}")
-    parser.add_argument("--episodes", type=int)
+    parser.add_argument("--target", help=f"deployment target, any of {sorted(TARGETS)}")
+    parser.add_argument("--episodes", type=int, help="evaluation episodes per point")
     parser.add_argument("--expert", help=f"expert checkpoint (default {DEFAULT_EXPERT})")
     parser.add_argument("--retrain-expert", action="store_true")
     parser.add_argument("--output-dir")
     args = parser.parse_args(argv)
     cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
-    overrides = {k: v for k, v in (("targets", args.targets), ("episodes", args.episodes),
+    overrides = {k: v for k, v in (("target", args.target), ("episodes", args.episodes),
                                    ("expert", args.expert), ("output_dir", args.output_dir))
                  if v is not None}
     cfg = dataclasses.replace(cfg, retrain_expert=args.retrain_expert, **overrides)
-    unknown = [t for t in cfg.targets if t not in TARGETS]
+    unknown = [t for t in {cfg.target, *cfg.expert_targets} if t not in TARGETS]
     if unknown:
-        parser.error(f"unknown targets {unknown}; valid: {sorted(TARGETS)}")
+        parser.error(f"unknown targets {sorted(unknown)}; valid: {sorted(TARGETS)}")
+    if cfg.target not in cfg.expert_targets:
+        cfg.expert_targets = [*cfg.expert_targets, cfg.target]
     out = Path(cfg.output_dir)
     runner = StageRunner(out, cfg)  # finished stages are skipped when rerun
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
-    for name in ("expert", "expert_zero_shot"):
+    def stage(name, fn):
         if runner.done(name):
             print(f"stage {name}: already done, reusing its results")
-    expert = runner.run("expert", lambda d: expert_stage(cfg, d))
-    results = runner.run("expert_zero_shot", lambda d: zero_shot_stage(cfg, expert["path"]))
+        return runner.run(name, fn)
 
-    print(f"\nExpert zero-shot, {cfg.episodes} episodes x {cfg.episode_steps} steps per domain")
-    print(f"{'domain':16s} {'forward progress (m)':>22s} {'of commanded distance':>24s}")
-    for target, r in results.items():
-        print(f"{target:16s} {r['mean_m']:10.2f} +- {r['std_m']:<8.2f} "
-              f"{100 * r['mean_fraction']:14.0f}% +- {100 * r['std_fraction']:.0f}%")
-    print("\nstage timings: " + ", ".join(f"{k} {v:.1f} s" for k, v in runner.timings.items()))
+    expert = stage("expert", lambda d: expert_stage(cfg, d))
+    expert_zero_shot = stage("expert_zero_shot",
+                             lambda d: expert_zero_shot_stage(cfg, expert["path"]))
+    dataset = stage("dataset", lambda d: dataset_stage(cfg, expert["path"], d))
+    pretrained = stage("pretrain", lambda d: pretrain_stage(cfg, dataset["path"], d))
+
+    def zero_shot(d):
+        agent = load_agent(cfg, pretrained)
+        return {domain: evaluate_planner(cfg, agent, domain)[0]
+                for domain in tqdm(["sim", cfg.target], desc="planner zero-shot")}
+
+    planner_zero_shot = stage("zero_shot", zero_shot)
+    probe = stage("probe", lambda d: probe_stage(cfg, dataset["path"], pretrained, d))
+    rounds, previous = [], None
+    for k in range(len(cfg.budgets_min)):
+        previous = stage(f"round_{k + 1}", lambda d, k=k, p=previous: round_stage(
+            cfg, k, pretrained, expert["path"], d, p))
+        rounds.append(previous)
+
+    recordings = stage("recordings",
+                       lambda d: recording_stage(cfg, pretrained, probe, rounds[-1], out))
+    results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds)
+    print_table(results, cfg.target)
+    print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     (out / "results.json").write_text(json.dumps(
-        {"config": dataclasses.asdict(cfg), "expert": expert, "expert_zero_shot": results,
+        {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
+         "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
+         "planner_zero_shot": planner_zero_shot, "probe": probe, "recordings": recordings,
+         "curves": results,
          "timings_s": runner.timings}, indent=2))
-    _plot(results, out / "forward_progress.png")
+    plot_results(results, cfg.target, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
+    print(f"rerun recordings (open with `rerun FILE`): {recordings['before']}, "
+          f"{recordings['after']}")
 
 
-def _plot(results: dict, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = list(results)
-    means = [100 * results[n]["mean_fraction"] for n in names]
-    stds = [100 * results[n]["std_fraction"] for n in names]
-    fig, ax = plt.subplots(figsize=(6, 3))
-    ax.bar(names, means, yerr=stds, color="tab:blue", alpha=0.8)
-    ax.set_ylabel("forward progress\n(% of commanded)")
-    ax.set_title("State-based expert, zero-shot in each domain")
-    ax.axhline(0, color="k", lw=0.5)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
+def collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds) -> dict:
+    """Per method: data budget (minutes) -> evaluation stats in the target."""
+    minutes = [0.0] + [r["target_steps"] / STEPS_PER_MINUTE for r in rounds]
+    zero = planner_zero_shot[cfg.target]
+    expert = expert_zero_shot[cfg.target]
+    return {
+        "minutes": minutes,
+        "planner_in_sim": planner_zero_shot["sim"],
+        "expert (zero-shot)": [expert] * len(minutes),
+        "SimDist: finetune dynamics": [zero] + [r["simdist_eval"] for r in rounds],
+        "ablation: finetune whole model": [zero] + [r["whole_eval"] for r in rounds],
+        "baseline: continue expert SAC": [expert] + [r["sac_eval"] for r in rounds],
+    }
 
 if __name__ == "__main__":
     main()

@@ -41,3 +41,18 @@ def test_pixel_encoder_handles_leading_dims_and_uint8_scaling():
     out = enc(x)
     assert out.shape == (2, 3, enc.embed_dim)
     torch.testing.assert_close(out[1, 2], enc(x[1, 2][None])[0])
+
+
+def test_history_encoder_normalisation_is_fixed_and_standardises_inputs():
+    torch.manual_seed(0)
+    enc = HistoryEncoder(obs_dim=3, history=2, latent_dim=8, hidden=16, simnorm_groups=None)
+    obs = torch.randn(50, 2, 3) * torch.tensor([1.0, 100.0, 0.01]) + 5.0
+    mean, std = obs.reshape(-1, 3).mean(0), obs.reshape(-1, 3).std(0)
+    enc.set_normalisation(mean, std)
+    standardised = HistoryEncoder(obs_dim=3, history=2, latent_dim=8, hidden=16, simnorm_groups=None)
+    standardised.net.load_state_dict(enc.net.state_dict())
+    torch.testing.assert_close(enc(obs), standardised((obs - mean) / std))
+    assert "obs_mean" in enc.state_dict() and all(p.dim() for p in enc.parameters())
+    assert not any(p is enc.obs_mean or p is enc.obs_std for p in enc.parameters())
+    with pytest.raises(ValueError, match="non-finite"):
+        enc.set_normalisation(torch.full((3,), float("nan")), std)

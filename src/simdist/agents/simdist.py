@@ -33,6 +33,10 @@ class SimDistConfig:
     finetune_lr: float = 1e-4
     grad_clip: float = 10.0
     bc_weight: float = 4.0
+    # Value labels are discounted returns (~1/(1-gamma) times a reward): this weight
+    # keeps their squared error from drowning the consistency term in the shared encoder.
+    # (Adam makes the value head's own step size independent of it.)
+    value_weight: float = 1.0
 
 
 class SimDistPolicy(TensorDictModuleBase):
@@ -43,8 +47,8 @@ class SimDistPolicy(TensorDictModuleBase):
         super().__init__()
         self.world_model, self.planner, self.obs_key = world_model, planner, obs_key
         self.in_keys = [obs_key, "is_init", ("simdist", "history")]
-        self.out_keys = ["action", ("next", "simdist", "history"), ("planner", "mean"),
-                         ("planner", "rewards"), ("planner", "value")]
+        self.out_keys = ["action", ("next", "simdist", "history"), ("planner", "latent"),
+                         ("planner", "mean"), ("planner", "rewards"), ("planner", "value")]
 
     @torch.no_grad()
     def forward(self, td: TensorDictBase) -> TensorDictBase:
@@ -65,6 +69,7 @@ class SimDistPolicy(TensorDictModuleBase):
                                         "is_init": is_init.reshape(-1, 1)}, [latent.shape[0]]))
         td.set("action", plan["action"].reshape(*batch, -1))
         td.set(("next", "simdist", "history"), history)
+        td.set(("planner", "latent"), latent.reshape(*batch, -1))
         for key in ("mean", "rewards", "value"):
             value = plan["planner", key]
             td.set(("planner", key), value.reshape(*batch, *value.shape[1:]))
@@ -88,7 +93,8 @@ class SimDistAgent:
     def __init__(self, world_model: SimDistWorldModel, config: SimDistConfig = SimDistConfig()):
         self.world_model, self.config = world_model, config
         self.pretrain_loss = SimDistPretrainLoss(world_model, horizon=config.horizon,
-                                                 bc_weight=config.bc_weight)
+                                                 bc_weight=config.bc_weight,
+                                                 value_weight=config.value_weight)
         self.finetune_loss = DynamicsFinetuneLoss(world_model, horizon=config.horizon)
         self.pretrain_optim = torch.optim.Adam(world_model.parameters(), lr=config.lr)
         self.finetune_optim = torch.optim.Adam(self.finetune_loss.trainable_parameters(),

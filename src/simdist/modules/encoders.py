@@ -100,11 +100,24 @@ class HistoryEncoder(nn.Module):
         self.obs_dim, self.history, self.latent_dim = obs_dim, history, latent_dim
         self.simnorm_groups = simnorm_groups
         self.net = mlp(obs_dim * history, latent_dim, hidden, layers)
+        # Fixed input statistics (buffers, never trained): observations mix angles,
+        # velocities and contact forces whose scales differ by orders of magnitude.
+        self.register_buffer("obs_mean", torch.zeros(obs_dim))
+        self.register_buffer("obs_std", torch.ones(obs_dim))
+
+    def set_normalisation(self, mean: torch.Tensor, std: torch.Tensor, eps: float = 1e-3) -> None:
+        """Standardises inputs with dataset statistics (e.g. before pretraining)."""
+        check_last_dims("mean", mean, (self.obs_dim,))
+        check_last_dims("std", std, (self.obs_dim,))
+        check_finite("mean", mean)
+        check_finite("std", std)
+        self.obs_mean.copy_(mean)
+        self.obs_std.copy_(std.clamp_min(eps))
 
     def forward(self, window: torch.Tensor) -> torch.Tensor:
         """Encodes windows ``[..., history, obs_dim]`` (oldest first) into latents."""
         check_last_dims("observation window", window, (self.history, self.obs_dim))
-        z = self.net(window.flatten(-2))
+        z = self.net(((window - self.obs_mean) / self.obs_std).flatten(-2))
         return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z
 
     def windows(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,70 @@
+"""Results table and plot for the SimDist transfer curves (forward progress vs target data).
+
+``results`` maps ``"minutes"`` to the data budgets and each method's name to one
+:func:`~simdist.pipelines.progress_stats` dict per budget; ``"planner_in_sim"`` holds
+the pretrained planner's figure in simulation (the level finetuning should approach).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def _methods(results: dict) -> list[str]:
+    return [k for k in results if k not in ("minutes", "planner_in_sim")]
+
+
+def format_table(results: dict, target: str) -> str:
+    """A plain-text table: one row per method and data budget.
+
+    Examples:
+        >>> s = {"mean_m": 1.0, "std_m": 0.1, "mean_fraction": 0.5, "std_fraction": 0.05}
+        >>> print(format_table({"minutes": [0.0], "m": [s]}, "ice"))  # doctest: +NORMALIZE_WHITESPACE
+        Forward progress in ice (mean +- std over episodes)
+        method                            target data    progress (m)   of commanded
+        m                                    0.00 min    1.00 +- 0.10     50% +- 5%
+    """
+    lines = [f"Forward progress in {target} (mean +- std over episodes)",
+             f"{'method':33s} {'target data':>12s} {'progress (m)':>15s} {'of commanded':>14s}"]
+    for name in _methods(results):
+        for minutes, r in zip(results["minutes"], results[name]):
+            lines.append(f"{name:33s} {minutes:8.2f} min {r['mean_m']:7.2f} +- {r['std_m']:<5.2f}"
+                         f" {100 * r['mean_fraction']:5.0f}% +- {100 * r['std_fraction']:.0f}%")
+    if "planner_in_sim" in results:
+        r = results["planner_in_sim"]
+        lines.append(f"{'(pretrained planner in sim)':33s} {'-':>12s} {r['mean_m']:7.2f} +- "
+                     f"{r['std_m']:<5.2f} {100 * r['mean_fraction']:5.0f}% +- "
+                     f"{100 * r['std_fraction']:.0f}%")
+    return "\n".join(lines)
+
+
+def print_table(results: dict, target: str) -> None:
+    print("\n" + format_table(results, target))
+
+
+def plot_results(results: dict, target: str, path: str | Path) -> None:
+    """Saves a PNG of forward progress (% of commanded) against minutes of target data."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    minutes = results["minutes"]
+    for name in _methods(results):
+        mean = [100 * r["mean_fraction"] for r in results[name]]
+        std = [100 * r["std_fraction"] for r in results[name]]
+        style = "--" if name.startswith("expert") else "-o"
+        line, = ax.plot(minutes, mean, style, label=name)
+        ax.fill_between(minutes, [m - s for m, s in zip(mean, std)],
+                        [m + s for m, s in zip(mean, std)], color=line.get_color(), alpha=0.15)
+    if "planner_in_sim" in results:
+        ax.axhline(100 * results["planner_in_sim"]["mean_fraction"], color="gray", lw=1,
+                   ls=":", label="pretrained planner in sim")
+    ax.axhline(100, color="k", lw=0.5)
+    ax.set_xlabel(f"minutes of 50 Hz data collected in {target}")
+    ax.set_ylabel("forward progress\n(% of commanded distance)")
+    ax.set_title(f"SimDist transfer to {target}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
