@@ -65,7 +65,7 @@ class Config:
     expert_frames: int = SACExpertConfig.total_frames
     expert_targets: list[str] = field(default_factory=lambda: [
         "sim", "slippery_slope", "foam", "payload", "weak_motors"])
-    episodes: int = 6            # evaluation episodes per point (batched worlds)
+    episodes: int = 12           # evaluation episodes per point (batched worlds)
     episode_steps: int = 250     # 5 s at 50 Hz
     seed: int = 0
     # dataset
@@ -86,9 +86,9 @@ class Config:
     planner_iterations: int = 3
     planner_elites: int = 8
     # target rounds: cumulative minutes of 50 Hz target data after each round
-    budgets_min: list[float] = field(default_factory=lambda: [1.0, 2.0, 4.0])
+    budgets_min: list[float] = field(default_factory=lambda: [1.0, 2.0, 4.0, 8.0])
     collect_episodes: int = 12   # worlds stepped at once while collecting
-    finetune_updates: int = 600  # per round, for every method (same data, same updates)
+    finetune_updates: int = 1000  # per round, for every method (same data, same updates)
     finetune_lr: float = 1e-4
     sac_batch_size: int = 256
     output_dir: str = "outputs/simdist_quadruped"

@@ -48,7 +48,7 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(9, 4))
     minutes = results["minutes"]
     for name in _methods(results):
         mean = [100 * r["mean_fraction"] for r in results[name]]
@@ -64,7 +64,7 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
     ax.set_xlabel(f"minutes of 50 Hz data collected in {target}")
     ax.set_ylabel("forward progress\n(% of commanded distance)")
     ax.set_title(f"SimDist transfer to {target}")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
