@@ -112,15 +112,40 @@ class DreamerAgent:
         self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
         self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
         self.obs_key = obs_key
+        self.obs_event_dims = 3 if obs_key == "pixels" else 1  # HWC images or vectors
 
     @classmethod
     def for_state(cls, state_dim: int, action_dim: int, config: DreamerConfig = DreamerConfig()):
+        """The TWIST teacher (and the Oracle): Dreamer on privileged ``"state"``."""
         return cls(DreamerWorldModel.teacher(state_dim, action_dim, config.size), action_dim,
                    config)
 
+    @classmethod
+    def for_pixels(cls, action_dim: int, config: DreamerConfig = DreamerConfig()):
+        """Dreamer from ``"pixels"`` (the TWIST paper's pixel baselines)."""
+        return cls(DreamerWorldModel.pixel_dreamer(action_dim, config.size), action_dim,
+                   config, obs_key="pixels")
+
     def policy(self, explore: bool = True) -> DreamerPolicy:
-        return DreamerPolicy(self.world_model, self.actor, self.obs_key, 1,
+        return DreamerPolicy(self.world_model, self.actor, self.obs_key, self.obs_event_dims,
                              self.config.exploration_noise, explore)
+
+    def state_dict(self) -> dict:
+        """Weights (target critic included) and optimiser states, for checkpoints."""
+        return {"world_model": self.world_model.state_dict(), "actor": self.actor.state_dict(),
+                "critic": self.critic.state_dict(),
+                "target_critic": self.behaviour_loss.target_critic.state_dict(),
+                "model_optim": self.model_optim.state_dict(),
+                "actor_optim": self.actor_optim.state_dict(),
+                "critic_optim": self.critic_optim.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.world_model.load_state_dict(state["world_model"])
+        self.actor.load_state_dict(state["actor"])
+        self.critic.load_state_dict(state["critic"])
+        self.behaviour_loss.target_critic.load_state_dict(state["target_critic"])
+        for name in ("model_optim", "actor_optim", "critic_optim"):
+            getattr(self, name).load_state_dict(state[name])
 
     def make_primer(self) -> TensorDictPrimer:
         rssm = self.world_model.rssm

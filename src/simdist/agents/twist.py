@@ -72,6 +72,14 @@ class TwistStudent:
         self.optim.step()
         return terms
 
+    def state_dict(self) -> dict:
+        """The student's weights and optimiser (the teacher is saved with its own agent)."""
+        return {"student": self.student.state_dict(), "optim": self.optim.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.student.load_state_dict(state["student"])
+        self.optim.load_state_dict(state["optim"])
+
     def policy(self, explore: bool = False) -> DreamerPolicy:
         """Pixels -> student latent -> teacher actor (uses ``self.make_primer()`` state)."""
         return DreamerPolicy(self.student, self.teacher.actor, "pixels", obs_event_dims=3,

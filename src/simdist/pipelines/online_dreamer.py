@@ -1,0 +1,134 @@
+"""Online Dreamer training (collect an episode, train on replayed slices), crash-safe.
+
+Used for the TWIST teacher (Dreamer on privileged state that also records the
+domain-randomised image of every step, building ``D = {(s, o, a, r)}``) and for the
+pixel-Dreamer baselines: the same loop, a different agent and env.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+from tqdm import tqdm
+
+from simdist.pipelines.control import EpisodeReplay
+from simdist.pipelines.locomotion import rollout
+from simdist.utils import load_checkpoint, save_atomic
+
+
+@dataclass
+class OnlineConfig:
+    """Environment-step budget and replay settings of one online Dreamer run.
+
+    Attributes:
+        env_steps: agent steps collected in all (prefill included); whole episodes.
+        prefill_steps: of those, steps with uniformly random actions first.
+        train_every: agent steps per gradient update (DreamerV2 on DMC: 5).
+        episode_steps: agent steps per episode.
+        slice_len: replayed slice length; slices: slices per batch.
+    """
+
+    env_steps: int = 5000
+    prefill_steps: int = 1000
+    train_every: int = 5
+    episode_steps: int = 500
+    slice_len: int = 50
+    slices: int = 16
+
+    def __post_init__(self):
+        for name in ("env_steps", "train_every", "episode_steps", "slice_len", "slices"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.prefill_steps <= self.env_steps:
+            raise ValueError("prefill_steps must lie in [0, env_steps]")
+        if self.slice_len > self.episode_steps:
+            raise ValueError(f"slice_len {self.slice_len} exceeds episode_steps "
+                             f"{self.episode_steps}")
+
+    @property
+    def episodes(self) -> int:
+        return -(-self.env_steps // self.episode_steps)
+
+    @property
+    def prefill_episodes(self) -> int:
+        return -(-self.prefill_steps // self.episode_steps)
+
+
+def _save_episode(episode: TensorDict, path: Path) -> None:
+    """Memory-maps an episode into a temporary folder, then renames it into place."""
+    tmp = path.with_name(path.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    episode.memmap(tmp)
+    os.replace(tmp, path)
+
+
+def load_episodes(stage_dir: str | Path) -> list[TensorDict]:
+    """The episodes an online run stored (its dataset ``D``), in collection order."""
+    folder = Path(stage_dir) / "episodes"
+    paths = sorted(p for p in folder.iterdir() if not p.name.endswith(".tmp"))
+    return [TensorDict.load_memmap(p) for p in paths]
+
+
+def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path,
+                         keys: list, desc: str = "dreamer", progress: bool = True) -> dict:
+    """Alternates collecting one episode with ``agent`` and ``episode_steps / train_every``
+    updates on slices of everything collected so far.
+
+    Every episode is written to ``stage_dir/episodes`` (only ``keys``) before it is
+    trained on; the agent (weights, optimisers, counters) is checkpointed atomically
+    after each episode's updates. Rerunning after a crash reloads the stored episodes,
+    restores the agent, and goes on: no episode is collected twice or lost.
+
+    Args:
+        agent: a :class:`~simdist.agents.DreamerAgent` (its ``policy`` acts, ``update``
+            trains); its primer must already be on ``env``.
+        env: an unbatched env with ``InitTracker`` whose episodes last
+            ``config.episode_steps``.
+        keys: the keys of each step to keep (e.g. :func:`~simdist.pipelines.dreamer_keys`).
+
+    Returns:
+        ``{"episode_returns": [...], "history": [per-update metrics], "updates": n}``.
+    """
+    stage_dir = Path(stage_dir)
+    (stage_dir / "episodes").mkdir(parents=True, exist_ok=True)
+    checkpoint = stage_dir / "agent.pt"
+    trained, history, returns = 0, [], []
+    if checkpoint.exists():
+        saved = load_checkpoint(checkpoint)
+        agent.load_state_dict(saved["agent"])
+        trained, history, returns = saved["episodes"], saved["history"], saved["returns"]
+    replay = EpisodeReplay(config.episodes * config.episode_steps, config.slice_len,
+                           config.slices)
+    updates_per_episode = max(1, config.episode_steps // config.train_every)
+    bar = tqdm(range(config.episodes), desc=desc, disable=not progress or
+               trained >= config.episodes)
+    for i in bar:
+        path = stage_dir / "episodes" / f"{i:05d}"
+        if not path.exists():
+            with torch.no_grad():
+                policy = None if i < config.prefill_episodes else agent.policy(explore=True)
+                episode = rollout(env, policy, config.episode_steps)
+            _save_episode(episode.select(*keys), path)
+        episode = TensorDict.load_memmap(path).to_tensordict()
+        replay.add(episode)
+        if i < trained:
+            continue  # collected and trained on before the crash
+        returns.append(float(episode["next", "reward"].sum()))
+        for _ in range(updates_per_episode):
+            metrics = agent.update(replay.sample())
+            bad = [k for k, v in metrics.items()
+                   if k.startswith("loss") and not torch.isfinite(torch.tensor(v))]
+            if bad:
+                raise FloatingPointError(f"{desc}: non-finite {bad} after episode {i}; last "
+                                         f"checkpoint kept at {checkpoint}")
+            history.append(metrics)
+        save_atomic({"agent": agent.state_dict(), "episodes": i + 1, "history": history,
+                     "returns": returns}, checkpoint)
+        bar.set_postfix(episode_return=f"{returns[-1]:.0f}",
+                        loss_reconstruction=f"{history[-1]['loss_reconstruction']:.3g}")
+    return {"episode_returns": returns, "history": history, "updates": len(history)}
