@@ -1,9 +1,14 @@
 """Pipeline steps shared by the recipes (evaluate, collect, train on slices, baselines)."""
 
+from simdist.pipelines.control import (EpisodeReplay, control_env, dreamer_keys,
+                                       evaluate_returns, returns_stats)
 from simdist.pipelines.locomotion import (as_slices, locomotion_env, progress_stats, rollout,
                                           train)
+from simdist.pipelines.online_dreamer import (OnlineConfig, load_episodes,
+                                              train_dreamer_online)
 from simdist.pipelines.policy_finetune import OfflineSAC, OfflineSACConfig
 from simdist.pipelines.resumable import mean_metrics, train_resumable, weights
 
-__all__ = ["as_slices", "locomotion_env", "progress_stats", "rollout", "train", "OfflineSAC",
-           "OfflineSACConfig", "mean_metrics", "train_resumable", "weights"]
+__all__ = ["EpisodeReplay", "control_env", "dreamer_keys", "evaluate_returns", "returns_stats",
+           "OnlineConfig", "load_episodes", "train_dreamer_online", "as_slices", "locomotion_env",
+           "progress_stats", "rollout", "train", "OfflineSAC", "OfflineSACConfig", "mean_metrics", "train_resumable", "weights"]

@@ -1,0 +1,272 @@
+"""TWIST on the control suite: distil an image student from a state teacher, with baselines.
+
+Per task and seed (each stage checkpointed under ``--output-dir``; rerunning skips
+finished stages and a killed stage resumes from its last checkpoint):
+
+1. ``teacher``: Dreamer on privileged state, collecting online; every step also records
+   the domain-randomised image (randomised every step), building ``D = {(s, o, a, r)}``.
+2. ``oracle``: the teacher itself, evaluated (the upper bound).
+3. ``twist`` and its ablations (``no_imagined``, ``no_noise``): an image RSSM trained
+   with the teacher frozen on slices of ``D`` with latent distillation (Eq. 3) plus
+   imagined-rollout alignment (Eq. 4); deployed as pixels -> student latent -> the
+   teacher's actor.
+4. ``dreamer_dr`` / ``dreamer_no_dr``: Dreamer from pixels, with and without visual DR,
+   with the same environment-step budget and the same number of updates as the teacher.
+
+Every method is evaluated on **held-out** textures (train colours, camera jitter; drawn
+once per episode), on the same seeds.
+
+Usage:
+    python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~30 min
+    python recipes/twist_dmc.py --preset tiny      # seconds, used by the tests
+    python recipes/twist_dmc.py --preset paper     # six tasks x 3 seeds at 500K steps (GPU)
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import simdist  # noqa: F401  (headless GL set-up before dm_control)
+import torch
+from tensordict import TensorDict
+
+from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStudent
+from simdist.envs import TASKS, VisualRandomisation
+from simdist.modules import DreamerWorldModel
+from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
+                               evaluate_returns, load_episodes, mean_metrics, train_dreamer_online,
+                               train_resumable)
+from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
+from simdist.utils import StageRunner, load_checkpoint
+from simdist.viz.student_view import record_student_episode
+
+TWIST = "TWIST (student)"
+# stage suffix -> (table name, TwistConfig overrides): the paper's two ablations
+STUDENTS = {"twist": (TWIST, {}),
+            "no_imagined": ("TWIST w/o imagined alignment", {"imagined": False}),
+            "no_noise": ("TWIST w/o action noise", {"action_noise_std": 0.0})}
+# stage suffix -> (table name, visual randomisation while training)
+PIXEL_DREAMERS = {"dreamer_dr": ("Dreamer from pixels + DR", VisualRandomisation.training()),
+                  "dreamer_no_dr": ("Dreamer from pixels, no DR", None)}
+
+
+@dataclass
+class Config:
+    """Flat recipe config; presets below override fields. Saved as ``config.json``."""
+
+    tasks: list[str] = field(default_factory=lambda: ["cartpole-balance"])
+    seeds: list[int] = field(default_factory=lambda: [0])
+    model_size: str = "compact"
+    # online budget, the same for the teacher and both pixel Dreamers
+    env_steps: int = 3000
+    prefill_steps: int = 1000
+    train_every: int = 10
+    episode_steps: int = 500
+    slice_len: int = 32
+    slices: int = 16
+    # student (TWIST: slices of 50, imagination horizon 15, action noise 0.3)
+    student_updates: int = 300
+    student_slice_len: int = 50
+    student_slices: int = 8
+    horizon: int = 15
+    action_noise_std: float = 0.3
+    imagination_starts: int = 256
+    # evaluation on held-out scenes
+    eval_episodes: int = 4
+    eval_steps: int = 500
+    record: bool = True
+    output_dir: str = "outputs/twist_dmc"
+
+    def online(self) -> OnlineConfig:
+        return OnlineConfig(env_steps=self.env_steps, prefill_steps=self.prefill_steps,
+                            train_every=self.train_every, episode_steps=self.episode_steps,
+                            slice_len=self.slice_len, slices=self.slices)
+
+    def dreamer(self) -> DreamerConfig:
+        return DreamerConfig(size=self.model_size, horizon=self.horizon)
+
+
+PRESETS = {
+    "default": {},
+    "tiny": {"model_size": "tiny", "env_steps": 40, "prefill_steps": 20, "train_every": 10,
+             "episode_steps": 20, "slice_len": 8, "slices": 2, "student_updates": 3,
+             "student_slice_len": 8, "student_slices": 2, "horizon": 3,
+             "imagination_starts": 8, "eval_episodes": 2, "eval_steps": 10},
+    "paper": {"tasks": ["ball_in_cup-catch", "cartpole-balance", "cheetah-run",
+                        "hopper-stand", "walker-walk", "finger-turn_easy"],
+              "seeds": [0, 1, 2], "model_size": "paper", "env_steps": 500_000,
+              "prefill_steps": 5000, "train_every": 5, "slice_len": 50, "slices": 16,
+              "student_updates": 100_000, "student_slices": 16, "imagination_starts": 800,
+              "eval_episodes": 10},
+}
+
+
+# -- stages -----------------------------------------------------------------------------
+def state_dim(task: str) -> int:
+    env = control_env(task, 0)
+    try:
+        return env.observation_spec["state"].shape[-1], env.action_spec.shape[-1]
+    finally:
+        env.close()
+
+
+def teacher_agent(cfg: Config, task: str) -> DreamerAgent:
+    return DreamerAgent.for_state(*state_dim(task), cfg.dreamer())
+
+
+def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
+    """State Dreamer that records the domain-randomised image of every step it collects."""
+    torch.manual_seed(seed)
+    agent = teacher_agent(cfg, task)
+    env = control_env(task, seed, pixels=True, visual=VisualRandomisation.training(),
+                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
+    out = train_dreamer_online(agent, env, cfg.online(), stage_dir,
+                               dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}")
+    env.close()
+    return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
+            "episode_returns": out["episode_returns"], "updates": out["updates"],
+            "last": mean_metrics(out["history"])}
+
+
+def load_teacher(cfg: Config, task: str, teacher: dict) -> DreamerAgent:
+    agent = teacher_agent(cfg, task)
+    agent.load_state_dict(load_checkpoint(teacher["checkpoint"])["agent"])
+    return agent
+
+
+def evaluate(cfg: Config, task: str, seed: int, policy, primer, pixels: bool) -> dict:
+    """Held-out scenes (textures never seen in training), the same seeds for all methods."""
+    visual = VisualRandomisation.heldout_evaluation() if pixels else None
+    return evaluate_returns(task, policy, primer, seed + 10_000, cfg.eval_episodes,
+                            cfg.eval_steps, pixels, visual)
+
+
+def new_student(cfg: Config, task: str, teacher: DreamerAgent, overrides: dict) -> TwistStudent:
+    student = DreamerWorldModel.student(teacher.actor.action_dim, cfg.model_size)
+    config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
+                         max_imagination_starts=cfg.imagination_starts)
+    return TwistStudent(teacher, student, dataclasses.replace(config, **overrides))
+
+
+def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
+                  stage_dir: Path) -> dict:
+    """Distils a student from the frozen teacher on ``D``, then evaluates it from pixels."""
+    torch.manual_seed(seed)
+    agent = load_teacher(cfg, task, teacher)
+    twist = new_student(cfg, task, agent, overrides)
+    replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
+                           cfg.student_slices)
+    for episode in load_episodes(teacher["data"]):
+        replay.add(episode.to_tensordict())
+    history = train_resumable(twist.update, replay.sample, cfg.student_updates,
+                              {"twist": twist}, stage_dir / "student.pt",
+                              every=max(1, cfg.student_updates // 10),
+                              desc=f"{stage_dir.name}")
+    result = evaluate(cfg, task, seed, twist.policy(), twist.make_primer(), pixels=True)
+    return {**result, "checkpoint": str(stage_dir / "student.pt"),
+            "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
+
+
+def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Path) -> dict:
+    torch.manual_seed(seed)
+    agent = DreamerAgent.for_pixels(state_dim(task)[1], cfg.dreamer())
+    env = control_env(task, seed, pixels=True, visual=visual,
+                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
+    out = train_dreamer_online(agent, env, cfg.online(), stage_dir, dreamer_keys("pixels"),
+                               desc=stage_dir.name)
+    env.close()
+    result = evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
+                      pixels=True)
+    return {**result, "episode_returns": out["episode_returns"], "updates": out["updates"],
+            "last": mean_metrics(out["history"])}
+
+
+def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path) -> dict:
+    agent = load_teacher(cfg, task, teacher)
+    twist = new_student(cfg, task, agent, {})
+    twist.load_state_dict(load_checkpoint(out / "stages" / f"{task}_s{seed}_twist" /
+                                          "student.pt")["state"]["twist"])
+    env = control_env(task, seed + 10_000, pixels=True,
+                      visual=VisualRandomisation.heldout_evaluation(),
+                      max_episode_steps=cfg.eval_steps, primer=twist.make_primer())
+    path = record_student_episode(env, agent, twist, str(out / "rerun_student.rrd"),
+                                  cfg.eval_steps)
+    env.close()
+    return {"path": path}
+
+
+# -- the recipe -------------------------------------------------------------------------
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
+    parser.add_argument("--tasks", nargs="+", help=f"any of {sorted(TASKS)}")
+    parser.add_argument("--seeds", nargs="+", type=int)
+    parser.add_argument("--eval-episodes", type=int)
+    parser.add_argument("--output-dir")
+    args = parser.parse_args(argv)
+    cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
+    overrides = {k: v for k, v in (("tasks", args.tasks), ("seeds", args.seeds),
+                                   ("eval_episodes", args.eval_episodes),
+                                   ("output_dir", args.output_dir)) if v is not None}
+    cfg = dataclasses.replace(cfg, **overrides)
+    unknown = [t for t in cfg.tasks if t not in TASKS or TASKS[t].is_robot]
+    if unknown:
+        parser.error(f"unknown control-suite tasks {unknown}; valid: "
+                     f"{sorted(t for t in TASKS if not TASKS[t].is_robot)}")
+    cfg.online()  # validates the budget before any work
+    out = Path(cfg.output_dir)
+    runner = StageRunner(out, cfg)
+
+    def stage(name, fn):
+        if runner.done(name):
+            print(f"stage {name}: already done, reusing its results")
+        return runner.run(name, fn)
+
+    results, records = {}, {}
+    for task in cfg.tasks:
+        methods = {}
+        for seed in cfg.seeds:
+            key = f"{task}_s{seed}"
+            teacher = stage(f"{key}_teacher", lambda d: teacher_stage(cfg, task, seed, d))
+
+            def oracle(d, task=task, seed=seed, teacher=teacher):
+                agent = load_teacher(cfg, task, teacher)
+                return evaluate(cfg, task, seed, agent.policy(explore=False),
+                                agent.make_primer(), pixels=False)
+
+            runs = {ORACLE: stage(f"{key}_oracle", oracle)}
+            for suffix, (name, changes) in STUDENTS.items():
+                runs[name] = stage(f"{key}_{suffix}", lambda d, c=changes: student_stage(
+                    cfg, task, seed, teacher, c, d))
+            for suffix, (name, visual) in PIXEL_DREAMERS.items():
+                runs[name] = stage(f"{key}_{suffix}", lambda d, v=visual: pixel_dreamer_stage(
+                    cfg, task, seed, v, d))
+            records[key] = {"teacher": teacher, **runs}
+            for name, r in runs.items():
+                entry = methods.setdefault(name, {"returns": [], "seed_means": []})
+                entry["returns"] += r["returns"]
+                entry["seed_means"].append(r["mean"])
+        results[task] = methods
+
+    recording = None
+    if cfg.record:
+        task, seed = cfg.tasks[0], cfg.seeds[0]
+        recording = stage("recording", lambda d: recording_stage(
+            cfg, task, seed, records[f"{task}_s{seed}"]["teacher"], out))
+    print("\n" + format_table(results))
+    print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
+    (out / "results.json").write_text(json.dumps(
+        {"config": dataclasses.asdict(cfg), "results": results, "summary": summarise(results),
+         "runs": records, "recording": recording, "timings_s": runner.timings}, indent=2))
+    plot_results(results, out / "returns.png")
+    print(f"wrote {out / 'results.json'} and {out / 'returns.png'}")
+    if recording:
+        print(f"rerun recording (open with `rerun FILE`): {recording['path']}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,63 @@
+"""The TWIST recipe end to end on its tiny preset, in a subprocess."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+
+from simdist.viz import entity_paths
+
+ROOT = Path(__file__).resolve().parents[2]
+RECIPE = [sys.executable, str(ROOT / "recipes" / "twist_dmc.py")]
+METHODS = ["Oracle (state teacher)", "TWIST (student)", "TWIST w/o imagined alignment",
+           "TWIST w/o action noise", "Dreamer from pixels + DR", "Dreamer from pixels, no DR"]
+
+
+def _run(*args, timeout=300):
+    return subprocess.run([*RECIPE, *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
+    proc = _run("--preset", "tiny", "--output-dir", tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    results = json.loads((tmp_path / "results.json").read_text())
+    task = results["results"]["cartpole-balance"]
+    assert list(task) == METHODS
+    for name in METHODS:
+        # 2 held-out evaluation episodes of 10 agent steps (action repeat 2: <= 20 reward)
+        assert len(task[name]["returns"]) == 2
+        assert all(0 <= r <= 20 for r in task[name]["returns"])
+    summary = results["summary"]["cartpole-balance"]
+    assert summary["Oracle (state teacher)"]["normalised"] == 1.0
+    run = results["runs"]["cartpole-balance_s0"]
+    assert run["teacher"]["updates"] == 2 * 2  # 40 steps = 2 episodes x (20 / 10) updates
+    # the teacher's dataset D holds state and randomised pixels of the same steps
+    episode = tmp_path / "stages" / "cartpole-balance_s0_teacher" / "episodes" / "00000"
+    assert (episode / "next" / "pixels.memmap").exists()
+    assert (episode / "next" / "state.memmap").exists()
+    # only the students trained: the teacher checkpoint is what the oracle evaluated
+    student = torch.load(tmp_path / "stages" / "cartpole-balance_s0_twist" / "student.pt",
+                         weights_only=True)
+    assert len(student["history"]) == 3 and "loss_imagined" in student["history"][-1]
+    ablation = torch.load(tmp_path / "stages" / "cartpole-balance_s0_no_imagined" /
+                          "student.pt", weights_only=True)
+    assert "loss_imagined" not in ablation["history"][-1]
+    assert "% of Oracle" in proc.stdout and "TWIST (student)" in proc.stdout
+    assert (tmp_path / "returns.png").stat().st_size > 0
+    paths = entity_paths(str(tmp_path / "rerun_student.rrd"))
+    assert "/student/view" in paths and "/latent/belief_distance" in paths
+    assert any(p.startswith("/state/from_student_latent/") for p in paths)
+
+    again = _run("--preset", "tiny", "--output-dir", tmp_path)
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.count("already done") == 8  # 7 stages per task-seed + recording
+    changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
+    assert changed.returncode != 0 and "different config" in changed.stderr
+
+
+def test_unknown_task_is_a_clear_error(tmp_path):
+    proc = _run("--preset", "tiny", "--tasks", "cartpole-fly", "--output-dir", tmp_path)
+    assert proc.returncode != 0 and "unknown control-suite tasks" in proc.stderr
