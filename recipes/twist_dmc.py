@@ -62,9 +62,9 @@ class Config:
     seeds: list[int] = field(default_factory=lambda: [0])
     model_size: str = "compact"
     # online budget, the same for the teacher and both pixel Dreamers
-    env_steps: int = 3000
+    env_steps: int = 4000
     prefill_steps: int = 1000
-    train_every: int = 10
+    train_every: int = 8
     episode_steps: int = 500
     slice_len: int = 32
     slices: int = 16
@@ -74,7 +74,7 @@ class Config:
     student_slices: int = 8
     horizon: int = 15
     action_noise_std: float = 0.3
-    imagination_starts: int = 256
+    imagination_starts: int = 256  # per update, for the actor-critic and Eq. 4
     # evaluation on held-out scenes
     eval_episodes: int = 4
     eval_steps: int = 500
@@ -87,7 +87,8 @@ class Config:
                             slice_len=self.slice_len, slices=self.slices)
 
     def dreamer(self) -> DreamerConfig:
-        return DreamerConfig(size=self.model_size, horizon=self.horizon)
+        return DreamerConfig(size=self.model_size, horizon=self.horizon,
+                             imagination_starts=self.imagination_starts)
 
 
 PRESETS = {

@@ -34,6 +34,7 @@ class DreamerConfig:
     grad_clip: float = 100.0
     exploration_noise: float = 0.3
     entropy_coeff: float = 3e-4
+    imagination_starts: int | None = None  # None: every posterior state (DreamerV2)
 
 
 class DreamerPolicy(TensorDictModuleBase):
@@ -107,7 +108,7 @@ class DreamerAgent:
         self.model_loss.set_keys(observation=("next", obs_key))
         self.behaviour_loss = DreamerActorCriticLoss(
             world_model, self.actor, self.critic, horizon=config.horizon,
-            entropy_coeff=config.entropy_coeff)
+            entropy_coeff=config.entropy_coeff, max_starts=config.imagination_starts)
         self.model_optim = torch.optim.Adam(world_model.parameters(), lr=config.model_lr)
         self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
         self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)

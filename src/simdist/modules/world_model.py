@@ -18,7 +18,7 @@ from simdist.modules.rssm import RSSM, RSSMState
 # Model sizes, TD-MPC2 style: one table, named rows.
 RSSM_SIZES = {
     "tiny": dict(deter_dim=32, stoch=4, classes=4, hidden_dim=32, embed=32, head=32, depth=4),
-    "compact": dict(deter_dim=128, stoch=16, classes=16, hidden_dim=128, embed=128, head=128,
+    "compact": dict(deter_dim=64, stoch=8, classes=8, hidden_dim=64, embed=64, head=64,
                     depth=16),
     "small": dict(deter_dim=200, stoch=32, classes=32, hidden_dim=200, embed=256, head=200,
                   depth=16),

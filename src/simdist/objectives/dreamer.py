@@ -122,6 +122,8 @@ class DreamerActorCriticLoss(SimdistLoss):
         horizon, gamma, lmbda: imagination length, discount, lambda.
         entropy_coeff: weight of the actor's entropy bonus.
         target_tau: Polyak rate of :meth:`update_target`.
+        max_starts: imagine from at most this many posterior states, drawn at random
+            (``None``: all of them, as DreamerV2); cuts the cost on CPU.
     """
 
     @dataclass
@@ -133,10 +135,14 @@ class DreamerActorCriticLoss(SimdistLoss):
 
     def __init__(self, world_model: DreamerWorldModel, actor, critic, horizon: int = 15,
                  gamma: float = 0.99, lmbda: float = 0.95, entropy_coeff: float = 3e-4,
-                 target_tau: float = 0.02, check_inputs: bool = True):
+                 target_tau: float = 0.02, max_starts: int | None = None,
+                 check_inputs: bool = True):
         super().__init__(check_inputs)
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
+        if max_starts is not None and max_starts < 1:
+            raise ValueError(f"max_starts must be >= 1 or None, got {max_starts}")
+        self.max_starts = max_starts
         self.world_model, self.actor, self.critic = world_model, actor, critic
         self.target_critic = copy.deepcopy(critic).requires_grad_(False)
         self.horizon, self.gamma, self.lmbda = horizon, gamma, lmbda
@@ -154,6 +160,9 @@ class DreamerActorCriticLoss(SimdistLoss):
     def forward(self, td: TensorDictBase) -> TensorDict:
         belief, stoch = self.read(td, "belief"), self.read(td, "stoch")
         state = RSSMState(belief.detach().flatten(0, -2), stoch.detach().flatten(0, -2))
+        if self.max_starts and state.belief.shape[0] > self.max_starts:
+            index = torch.randperm(state.belief.shape[0], device=belief.device)[:self.max_starts]
+            state = RSSMState(state.belief[index], state.stoch[index])
         rssm = self.world_model.rssm
         features, log_probs = [state.features()], []
         with hold_out_net(self.world_model):
