@@ -3,6 +3,8 @@
 Usage:
     python recipes/generate_dataset.py --expert checkpoints/quadruped_expert/expert.pt \
         --episodes 64 --steps 250 --out outputs/datasets/quadruped
+    # the same shards as Ray tasks (a local cluster, or the one RAY_ADDRESS names):
+    python recipes/generate_dataset.py --backend ray --episodes 4000 --shard-episodes 32
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ def main(argv=None):
     parser.add_argument("--shard-episodes", type=int, default=DatasetConfig.shard_episodes)
     parser.add_argument("--workers", type=int, default=1,
                         help="processes stepping the worlds (TorchRL ParallelEnv)")
+    parser.add_argument("--backend", choices=["local", "ray"], default="local",
+                        help="ray: each shard is a Ray task (pip install 'simdist[distributed]')")
     parser.add_argument("--pixels", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
@@ -34,7 +38,7 @@ def main(argv=None):
     cfg = DatasetConfig(episodes=args.episodes, episode_steps=args.steps,
                         shard_episodes=args.shard_episodes, num_workers=args.workers,
                         pixels=args.pixels, seed=args.seed)
-    path = generate_dataset(cfg, args.out, expert, earlier)
+    path = generate_dataset(cfg, args.out, expert, earlier, backend=args.backend)
     meta = json.loads((path / "meta.json").read_text())
     print(f"{meta['transitions']} transitions, {meta['bytes'] / 1e6:.1f} MB, "
           f"{meta['seconds']:.0f} s of generation -> {path}")

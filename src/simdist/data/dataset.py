@@ -136,16 +136,76 @@ def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=(), env=Non
     return td
 
 
+def _local_shards(cfg: DatasetConfig, todo, expert, snapshots):
+    """Yields ``(shard, data)`` in order, from one env reused across shards."""
+    env = make_generation_env(cfg)
+    try:
+        for shard in todo:
+            yield shard, generate_shard(cfg, shard, expert, snapshots, env)
+    finally:
+        env.close()
+
+
+def _ray_shard_task(cfg: DatasetConfig, shard: int, expert, snapshots) -> TensorDict:
+    # Runs in a Ray worker: torch there defaults to every core of the node, which
+    # oversubscribes when several shards run side by side.
+    torch.set_num_threads(1)
+    return generate_shard(cfg, shard, expert, snapshots)
+
+
+def _ray_shards(cfg: DatasetConfig, todo, expert, snapshots, max_in_flight: int | None):
+    """Yields ``(shard, data)`` as Ray tasks finish, at most ``max_in_flight`` at once.
+
+    Each task calls :func:`generate_shard` on the same ``(cfg, shard)`` as the local
+    backend, so a shard is the same bytes whichever backend made it, and a dataset can
+    be started on one backend and resumed on the other.
+    """
+    try:
+        import ray
+    except ImportError as err:
+        raise ImportError("backend='ray' needs Ray: pip install 'simdist[distributed]'") from err
+    if not ray.is_initialized():
+        # A local cluster over this machine's cores; call ray.init(address=...) first to
+        # use an existing cluster. No dashboard: nothing listens beyond what Ray needs.
+        ray.init(include_dashboard=False, log_to_driver=False)
+    task = ray.remote(num_cpus=cfg.num_workers)(_ray_shard_task)
+    limit = max_in_flight or max(1, int(ray.available_resources().get("CPU", 1)))
+    expert_ref, snapshots_ref = ray.put(expert), ray.put(list(snapshots))
+    pending, queue = {}, list(todo)
+    while queue or pending:
+        while queue and len(pending) < limit:
+            shard = queue.pop(0)
+            pending[task.remote(cfg, shard, expert_ref, snapshots_ref)] = shard
+        done, _ = ray.wait(list(pending), num_returns=1)
+        yield pending.pop(done[0]), ray.get(done[0])
+
+
 def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=(),
-                     progress: bool = True) -> Path:
-    """Generates (or resumes) a dataset under ``out_dir``; returns its path."""
+                     progress: bool = True, backend: str = "local",
+                     max_in_flight: int | None = None) -> Path:
+    """Generates (or resumes) a dataset under ``out_dir``; returns its path.
+
+    Args:
+        cfg: what to generate.
+        out_dir: the dataset directory; an existing one is resumed (same ``cfg`` only).
+        expert: the final :class:`~simdist.experts.Expert` (also labels values).
+        snapshots: earlier experts mixed in per episode.
+        progress: show a progress bar over shards.
+        backend: ``"local"`` rolls shards out in this process (``cfg.num_workers``
+            processes step the worlds); ``"ray"`` runs each shard as a Ray task (on the
+            cluster ``ray.init`` connected to, or a local one), ``cfg.num_workers`` CPUs
+            each. Shards are identical either way; this process writes every row.
+        max_in_flight: Ray only: shards generated at once (default: the cluster's CPUs).
+    """
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}: use 'local' or 'ray'")
     out = Path(out_dir)
     meta_path = out / "meta.json"
-    config = dataclasses.asdict(cfg)
-    env = None
+    config = json.loads(json.dumps(dataclasses.asdict(cfg), default=str))
+    data = None
     if meta_path.exists():
         meta = json.loads(meta_path.read_text())
-        if meta["config"] != json.loads(json.dumps(config, default=str)):
+        if meta["config"] != config:
             raise ValueError(f"{out} holds a dataset generated with a different config; "
                              "use another directory or the same settings to resume")
         data = TensorDict.load_memmap(out / "data")
@@ -153,32 +213,26 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
         out.mkdir(parents=True, exist_ok=True)
         if (out / "data").exists():  # a run killed before its first shard was recorded
             shutil.rmtree(out / "data")
-        start = time.perf_counter()
-        env = make_generation_env(cfg)
-        first = generate_shard(cfg, 0, expert, snapshots, env)
-        template = first[:1].expand(cfg.episodes, *first.shape[1:])
-        data = template.memmap_like(out / "data")
-        data[: cfg.shard_episodes] = first
-        meta = {"config": json.loads(json.dumps(config, default=str)), "versions": _versions(),
-                "shards_done": [0], "seconds": time.perf_counter() - start}
-        _write_json_atomic(meta_path, meta)
+        meta = {"config": config, "versions": _versions(), "shards_done": [], "seconds": 0.0}
     todo = [s for s in range(cfg.shards) if s not in meta["shards_done"]]
-    if todo and env is None:
-        env = make_generation_env(cfg)
+    shards = (_ray_shards(cfg, todo, expert, snapshots, max_in_flight) if backend == "ray"
+              else _local_shards(cfg, todo, expert, snapshots))
     bar = tqdm(total=cfg.shards, initial=cfg.shards - len(todo), disable=not progress,
                desc="dataset shards")
-    for shard in todo:
-        start = time.perf_counter()
-        rows = slice(shard * cfg.shard_episodes, (shard + 1) * cfg.shard_episodes)
-        data[rows] = generate_shard(cfg, shard, expert, snapshots, env)
+    start = time.perf_counter()
+    for shard, rows in shards:
+        if data is None:  # the first shard fixes the layout of the memory map
+            template = rows[:1].expand(cfg.episodes, *rows.shape[1:])
+            data = template.memmap_like(out / "data")
+        data[shard * cfg.shard_episodes:(shard + 1) * cfg.shard_episodes] = rows
         # Only after the shard's rows are written does the progress file list it.
         meta["shards_done"] = sorted(meta["shards_done"] + [shard])
-        meta["seconds"] += time.perf_counter() - start
+        now = time.perf_counter()
+        meta["seconds"] += now - start
+        start = now
         _write_json_atomic(meta_path, meta)
         bar.update(1)
     bar.close()
-    if env is not None:
-        env.close()
     meta.update(transitions=cfg.episodes * cfg.episode_steps,
                 bytes=sum(f.stat().st_size for f in (out / "data").rglob("*") if f.is_file()))
     _write_json_atomic(meta_path, meta)
