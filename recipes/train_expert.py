@@ -17,6 +17,26 @@ import json
 import simdist  # noqa: F401
 from simdist.experts import Expert, SACExpertConfig, evaluate, train_sac_expert
 from simdist.envs import TARGETS
+from simdist.utils import load_checkpoint
+
+
+def plot_training_curve(curve: list[dict], path) -> None:
+    """Evaluation return and forward progress against frames (``training_curve.png``)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frames = [point["frames"] for point in curve]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.2))
+    left.plot(frames, [point["return"] for point in curve], marker="o")
+    left.set(xlabel="frames", ylabel="evaluation return", title="SAC expert")
+    right.plot(frames, [point["forward_progress"] for point in curve], marker="o")
+    right.set(xlabel="frames", ylabel="forward progress (m)", title="per evaluation episode")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def main(argv=None):
@@ -30,6 +50,7 @@ def main(argv=None):
     cfg = SACExpertConfig(task=args.task, total_frames=args.frames, seed=args.seed)
     path = train_sac_expert(cfg, args.out, progress=not args.no_progress)
     expert = Expert.load(path)
+    plot_training_curve(load_checkpoint(path)["curve"], path.parent / "training_curve.png")
     report = {}
     for target in ("sim", "slippery_slope", "foam", "payload", "weak_motors", "laggy"):
         report[target] = evaluate(expert.actor, dataclasses.replace(cfg, dynamics_randomisation=False),
