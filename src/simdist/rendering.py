@@ -17,7 +17,15 @@ _FIX = (
 
 
 class RenderingUnavailableError(RuntimeError):
-    """Raised when MuJoCo cannot create an offscreen GL context."""
+    """Raised when MuJoCo cannot create an offscreen GL context.
+
+    Examples:
+        >>> err = rendering_error(RuntimeError("no EGL display"))  # what a failed render raises
+        >>> isinstance(err, RenderingUnavailableError), isinstance(err, RuntimeError)
+        (True, True)
+        >>> "(RuntimeError: no EGL display)" in str(err), "MUJOCO_GL=osmesa" in str(err)
+        (True, True)
+    """
 
 
 def configure_headless_rendering() -> str | None:

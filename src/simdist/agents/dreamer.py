@@ -24,7 +24,14 @@ from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss
 
 @dataclass
 class DreamerConfig:
-    """Dreamer hyperparameters (DreamerV2 defaults where they apply)."""
+    """Dreamer hyperparameters (DreamerV2 defaults where they apply).
+
+    Examples:
+        >>> config = DreamerConfig(size="tiny", horizon=5, exploration_noise=0.1)
+        >>> agent = DreamerAgent.for_state(state_dim=5, action_dim=1, config=config)
+        >>> agent.behaviour_loss.horizon, agent.policy().noise, agent.policy(explore=False).noise
+        (5, 0.1, 0.0)
+    """
 
     size: str = "small"
     horizon: int = 15
@@ -47,6 +54,14 @@ class DreamerPolicy(TensorDictModuleBase):
         obs_event_dims: trailing dimensions of one observation (1 for vectors, 3 for HWC).
         exploration_noise: std of Gaussian action noise when ``explore``.
         explore: add the noise (collection) or not (evaluation).
+
+    Examples:
+        >>> agent = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+        >>> policy = DreamerPolicy(agent.world_model, agent.actor, obs_key="state", explore=False)
+        >>> td = policy(TensorDict({"state": torch.zeros(2, 5),
+        ...                         "is_init": torch.ones(2, 1, dtype=torch.bool)}, [2]))
+        >>> td["action"].shape, td["next", "agent", "belief"].shape
+        (torch.Size([2, 1]), torch.Size([2, 32]))
     """
 
     def __init__(self, world_model: DreamerWorldModel, actor, obs_key="state",

@@ -25,7 +25,14 @@ from simdist.objectives import DynamicsFinetuneLoss, SimDistPretrainLoss
 
 @dataclass
 class SimDistConfig:
-    """Training settings (reference: Adam 2e-4 -> 1e-4 cosine, horizon 25, weights 1/1/1/4)."""
+    """Training settings (reference: Adam 2e-4 -> 1e-4 cosine, horizon 25, weights 1/1/1/4).
+
+    Examples:
+        >>> config = SimDistConfig(size="tiny", horizon=3, finetune_lr=5e-5)
+        >>> agent = SimDistAgent(SimDistWorldModel.build(10, 3, size=config.size), config)
+        >>> agent.pretrain_loss.horizon, agent.finetune_optim.param_groups[0]["lr"]
+        (3, 5e-05)
+    """
 
     size: str = "small"
     horizon: int = 5
@@ -40,7 +47,17 @@ class SimDistConfig:
 
 
 class SimDistPolicy(TensorDictModuleBase):
-    """Observation history -> latent -> latent MPPI plan -> action."""
+    """Observation history -> latent -> latent MPPI plan -> action.
+
+    Examples:
+        >>> agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny", history=2))
+        >>> planner = PlannerConfig(horizon=2, num_samples=8, num_elites=2, iterations=1)
+        >>> policy = agent.policy(-torch.ones(3), torch.ones(3), planner)
+        >>> td = policy(TensorDict({"observation": torch.zeros(4, 10),
+        ...                         "is_init": torch.ones(4, 1, dtype=torch.bool)}, [4]))
+        >>> td["action"].shape, td["next", "simdist", "history"].shape
+        (torch.Size([4, 3]), torch.Size([4, 2, 10]))
+    """
 
     def __init__(self, world_model: SimDistWorldModel, planner: LatentMPPIPlanner,
                  obs_key="observation"):

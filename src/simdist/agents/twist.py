@@ -19,7 +19,17 @@ from simdist.objectives import ImaginedAlignmentLoss, TwistDistillationLoss
 
 @dataclass
 class TwistConfig:
-    """Student training settings (TWIST: slices of 50, imagination horizon 15)."""
+    """Student training settings (TWIST: slices of 50, imagination horizon 15).
+
+    Examples:
+        >>> from simdist.agents import DreamerConfig
+        >>> teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+        >>> student = DreamerWorldModel.student(action_dim=1, size="tiny")
+        >>> TwistStudent(teacher, student, TwistConfig(imagined=False)).imagined is None
+        True
+        >>> TwistStudent(teacher, student, TwistConfig(horizon=5)).imagined.horizon
+        5
+    """
 
     lr: float = 3e-4
     grad_clip: float = 100.0
@@ -39,6 +49,19 @@ class TwistStudent:
         config: :class:`TwistConfig`; ``imagined=False`` and ``action_noise_std=0`` give
             the paper's two ablations.
         pixels_key: where the randomised images are in a batch.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> from simdist.agents import DreamerConfig
+        >>> teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+        >>> student = DreamerWorldModel.student(action_dim=1, size="tiny")
+        >>> twist = TwistStudent(teacher, student, TwistConfig(horizon=3))
+        >>> batch = TensorDict({"action": torch.zeros(2, 4, 1),
+        ...     "is_init": torch.zeros(2, 4, 1, dtype=torch.bool),
+        ...     "next": {"state": torch.zeros(2, 4, 5),
+        ...              "pixels": torch.zeros(2, 4, 64, 64, 3, dtype=torch.uint8)}}, [2, 4])
+        >>> sorted(k for k in twist.update(batch) if k.startswith("loss"))
+        ['loss_distillation', 'loss_imagined']
     """
 
     def __init__(self, teacher: DreamerAgent, student: DreamerWorldModel,

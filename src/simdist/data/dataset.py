@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import os
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -38,7 +39,16 @@ _DROP_NEXT = ("observation", "state", "pixels", "dynamics", "perturbation", "mix
 
 @dataclass
 class DatasetConfig:
-    """What to generate. ``episodes`` must be a multiple of ``shard_episodes``."""
+    """What to generate. ``episodes`` must be a multiple of ``shard_episodes``.
+
+    Examples:
+        >>> DatasetConfig(episodes=32, shard_episodes=8).shards
+        4
+        >>> DatasetConfig(episodes=30, shard_episodes=8)
+        Traceback (most recent call last):
+        ...
+        ValueError: episodes (30) must be a positive multiple of shard_episodes (8)
+    """
 
     task: str = "quadruped-flat"
     episodes: int = 32
@@ -165,9 +175,10 @@ def _ray_shards(cfg: DatasetConfig, todo, expert, snapshots, max_in_flight: int 
     except ImportError as err:
         raise ImportError("backend='ray' needs Ray: pip install 'simdist[distributed]'") from err
     if not ray.is_initialized():
-        # A local cluster over this machine's cores; call ray.init(address=...) first to
-        # use an existing cluster. No dashboard: nothing listens beyond what Ray needs.
-        ray.init(include_dashboard=False, log_to_driver=False)
+        if os.environ.get("RAY_ADDRESS"):  # an existing cluster, as Ray's own tools do
+            ray.init(log_to_driver=False)
+        else:  # a local cluster over this machine's cores, without the dashboard server
+            ray.init(include_dashboard=False, log_to_driver=False)
     task = ray.remote(num_cpus=cfg.num_workers)(_ray_shard_task)
     limit = max_in_flight or max(1, int(ray.available_resources().get("CPU", 1)))
     expert_ref, snapshots_ref = ray.put(expert), ray.put(list(snapshots))

@@ -85,6 +85,17 @@ class VisualEditor:
         physics: a ``dm_control.mujoco.Physics``.
         config: what to randomise.
         camera_id: the render camera whose pose may be jittered.
+
+    Examples:
+        >>> from simdist.envs import TargetDomain, get_task
+        >>> physics, _, _ = get_task("cartpole-balance").build(TargetDomain(), seed=0)
+        >>> mass, rgba = physics.model.body_mass.copy(), physics.model.mat_rgba.copy()
+        >>> editor = VisualEditor(physics, VisualRandomisation(textures=None), camera_id=0)
+        >>> editor.randomise(np.random.default_rng(0))  # no textures: nothing to upload to GL
+        >>> bool((physics.model.mat_rgba != rgba).any())  # colours changed, dynamics did not
+        True
+        >>> bool((physics.model.body_mass == mass).all())
+        True
     """
 
     def __init__(self, physics, config: VisualRandomisation, camera_id: int):

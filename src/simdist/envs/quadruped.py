@@ -64,6 +64,14 @@ class QuadrupedLocomotion(base.Task):
         speeds: commanded forward speeds (m/s), one drawn per episode.
         slope_deg: floor incline; forward is up the slope.
         random: seed or ``numpy.random.RandomState``.
+
+    Examples:
+        >>> physics = dmc_quadruped.Physics.from_xml_string(*make_model(slope_deg=8.0))
+        >>> task = QuadrupedLocomotion(speeds=(0.5,), slope_deg=8.0, random=0)
+        >>> with physics.reset_context():
+        ...     task.initialize_episode(physics)
+        >>> task.command, task.observation_layout(physics).size, task.forward_progress(physics)
+        (0.5, 89, 0.0)
     """
 
     def __init__(self, speeds=(0.25, 0.5, 0.75), slope_deg: float = 0.0, random=None):

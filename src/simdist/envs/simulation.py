@@ -36,6 +36,17 @@ class Simulation:
         seed: seed for every random draw.
         task_kwargs: forwarded to the task builder (e.g. quadruped ``speeds``).
         max_episode_steps: truncation length (default: the task's).
+
+    Examples:
+        >>> from simdist.envs import get_task
+        >>> sim = Simulation(get_task("cartpole-balance"), TargetDomain(), dynamics=None,
+        ...                  visual=None, pixels=False, image_size=64, camera_id=None, seed=0,
+        ...                  max_episode_steps=2)
+        >>> row = {k: np.zeros(n) for k, n in [("state", sim.state_layout.size), ("reward", 1),
+        ...        ("dynamics", len(DynamicsParams.FIELDS)), ("terminated", 1), ("truncated", 1)]}
+        >>> sim.reset(row); sim.step(np.zeros(1), row); sim.step(np.zeros(1), row)
+        >>> sim.state_layout.names(), sim.steps, bool(row["truncated"][0])
+        (['position', 'velocity'], 2, True)
     """
 
     def __init__(self, spec: task_registry.TaskSpec, target: TargetDomain,

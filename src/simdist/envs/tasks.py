@@ -36,6 +36,14 @@ class TaskSpec:
             from the privileged ``"state"``.
         supports_slope: whether a target's ``slope_deg`` can be honoured.
         defaults: default ``task_kwargs``.
+
+    Examples:
+        >>> spec = get_task("cartpole-balance")
+        >>> spec.action_repeat, spec.max_episode_steps, spec.is_robot
+        (2, 500, False)
+        >>> physics, task, n_sub_steps = spec.build(TargetDomain(), seed=0)
+        >>> type(task).__name__, n_sub_steps, physics.model.nu
+        ('Balance', 1, 1)
     """
 
     name: str

@@ -26,6 +26,14 @@ def make_actor(obs_dim: int, action_spec, hidden: int = 256, obs_key="observatio
 
 
 class QNetwork(nn.Module):
+    """``Q(observation, action)``: a layer-normed observation and the action into an ELU MLP.
+
+    Examples:
+        >>> q = QNetwork(obs_dim=4, action_dim=2, hidden=8)
+        >>> q(torch.zeros(3, 4), torch.zeros(3, 2)).shape
+        torch.Size([3, 1])
+    """
+
     def __init__(self, obs_dim: int, action_dim: int, hidden: int = 256):
         super().__init__()
         self.norm = nn.LayerNorm(obs_dim)

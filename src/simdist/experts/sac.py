@@ -32,7 +32,17 @@ from simdist.utils.checkpoint import load_checkpoint, save_atomic
 
 @dataclass
 class SACExpertConfig:
-    """Expert training configuration (flat, typed; saved beside every checkpoint)."""
+    """Expert training configuration (flat, typed; saved beside every checkpoint).
+
+    Examples:
+        >>> cfg = SACExpertConfig(num_envs=4, frames_per_batch=32)
+        >>> dataclasses.asdict(cfg)["task"], cfg.frames_per_batch // cfg.num_envs
+        ('quadruped-flat', 8)
+        >>> SACExpertConfig(num_envs=3, frames_per_batch=64)
+        Traceback (most recent call last):
+        ...
+        ValueError: frames_per_batch must be a multiple of num_envs
+    """
 
     task: str = "quadruped-flat"
     speeds: tuple = (0.25, 0.5, 0.75)

@@ -22,7 +22,15 @@ from simdist.modules.encoders import mlp
 
 @dataclass
 class RSSMState:
-    """Deterministic belief ``h`` and stochastic one-hot sample ``z`` (flattened)."""
+    """Deterministic belief ``h`` and stochastic one-hot sample ``z`` (flattened).
+
+    Examples:
+        >>> rssm = RSSM(embed_dim=8, action_dim=2, deter_dim=16, stoch=4, classes=4, hidden_dim=16)
+        >>> belief, logits = rssm.prior_step(rssm.initial((3,)), torch.zeros(3, 2))
+        >>> state = RSSMState(belief, rssm.sample(logits))
+        >>> state.stoch.shape, state.features().shape, state.detach().belief.requires_grad
+        (torch.Size([3, 16]), torch.Size([3, 32]), False)
+    """
 
     belief: torch.Tensor
     stoch: torch.Tensor

@@ -9,7 +9,20 @@ from torchrl.objectives import LossModule
 
 
 class MissingKeyError(KeyError):
-    """A required TensorDict key is absent (message printed unquoted, unlike KeyError)."""
+    """A required TensorDict key is absent (message printed unquoted, unlike KeyError).
+
+    Raised by :meth:`SimdistLoss.read`, naming the key, the loss and how to remap it.
+
+    Examples:
+        >>> from simdist.modules import DreamerWorldModel
+        >>> from simdist.objectives import DreamerWorldModelLoss
+        >>> loss = DreamerWorldModelLoss(DreamerWorldModel.teacher(3, 1, size="tiny"))
+        >>> try:
+        ...     loss(TensorDict({}, [2, 4]))
+        ... except MissingKeyError as err:
+        ...     print(isinstance(err, KeyError), str(err).split(";")[0])
+        True DreamerWorldModelLoss: input has no ('next', 'state') for 'observation'
+    """
 
     def __str__(self) -> str:
         return str(self.args[0])
@@ -26,6 +39,16 @@ class SimdistLoss(LossModule):
     Args:
         check_inputs: verify inputs are finite (one host sync per key; disable for speed
             once a pipeline is trusted).
+
+    Examples:
+        >>> from simdist.modules import DreamerWorldModel
+        >>> from simdist.objectives import DreamerWorldModelLoss
+        >>> loss = DreamerWorldModelLoss(DreamerWorldModel.teacher(3, 1, size="tiny"))
+        >>> loss.set_keys(observation="obs")
+        >>> loss.read(TensorDict({"obs": torch.full((2, 3), float("nan"))}, [2]), "observation")
+        Traceback (most recent call last):
+        ...
+        ValueError: DreamerWorldModelLoss: 'obs' contains NaN or inf
     """
 
     def __init__(self, check_inputs: bool = True):

@@ -124,6 +124,16 @@ class DreamerActorCriticLoss(SimdistLoss):
         target_tau: Polyak rate of :meth:`update_target`.
         max_starts: imagine from at most this many posterior states, drawn at random
             (``None``: all of them, as DreamerV2); cuts the cost on CPU.
+
+    Examples:
+        >>> from simdist.modules import Actor, ScalarHead
+        >>> wm = DreamerWorldModel.teacher(state_dim=3, action_dim=1, size="tiny")
+        >>> f = wm.rssm.feature_dim
+        >>> loss = DreamerActorCriticLoss(wm, Actor(f, 1, hidden=8), ScalarHead(f, 8), horizon=3)
+        >>> start = wm.rssm.initial((2, 4))  # normally DreamerWorldModelLoss's posteriors
+        >>> td = TensorDict({"posterior": {"belief": start.belief, "stoch": start.stoch}}, [2, 4])
+        >>> sorted(loss(td).keys())
+        ['entropy', 'imagined_reward', 'lambda_return', 'loss_actor', 'loss_critic']
     """
 
     @dataclass

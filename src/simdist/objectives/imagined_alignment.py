@@ -27,6 +27,18 @@ class ImaginedAlignmentLoss(TwistDistillationLoss):
             deterministic mode).
         horizon: imagined steps (TWIST: 15).
         action_noise_std: exploration noise on the teacher's actions (TWIST ablation: 0).
+
+    Examples:
+        >>> import copy
+        >>> from simdist.modules import Actor
+        >>> teacher = DreamerWorldModel.teacher(state_dim=3, action_dim=1, size="tiny")
+        >>> actor = Actor(teacher.rssm.feature_dim, 1, hidden=8)
+        >>> loss = ImaginedAlignmentLoss(teacher, copy.deepcopy(teacher), actor, horizon=3)
+        >>> x = torch.randn(2, 5, 3)  # a student identical to the teacher, on the same inputs
+        >>> td = TensorDict({"action": torch.randn(2, 5, 1), "is_init": torch.zeros(2, 5, 1,
+        ...     dtype=torch.bool), "next": {"state": x, "pixels": x}}, [2, 5])
+        >>> loss(td)["loss_imagined"].item()
+        0.0
     """
 
     # Subclasses TwistDistillationLoss for its keys, compatibility check and

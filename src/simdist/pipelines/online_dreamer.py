@@ -31,6 +31,15 @@ class OnlineConfig:
         train_every: agent steps per gradient update (DreamerV2 on DMC: 5).
         episode_steps: agent steps per episode.
         slice_len: replayed slice length; slices: slices per batch.
+
+    Examples:
+        >>> cfg = OnlineConfig(env_steps=1200, prefill_steps=500, episode_steps=500)
+        >>> cfg.episodes, cfg.prefill_episodes  # whole episodes, rounded up
+        (3, 1)
+        >>> OnlineConfig(episode_steps=20, slice_len=50)
+        Traceback (most recent call last):
+        ...
+        ValueError: slice_len 50 exceeds episode_steps 20
     """
 
     env_steps: int = 5000

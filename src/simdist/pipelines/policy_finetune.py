@@ -26,7 +26,14 @@ SAC_KEYS = ["observation", "action", ("next", "observation"), ("next", "reward")
 
 @dataclass
 class OfflineSACConfig:
-    """Continued-SAC settings (the expert's own lr, gamma and tau)."""
+    """Continued-SAC settings (the expert's own lr, gamma and tau).
+
+    Examples:
+        >>> sac = OfflineSAC(Expert.untrained(obs_dim=4, action_dim=2, hidden=8),
+        ...                  OfflineSACConfig(lr=1e-4, alpha=0.05))
+        >>> sac.optim.param_groups[0]["lr"], sac.loss.log_alpha.requires_grad  # alpha stays fixed
+        (0.0001, False)
+    """
 
     updates: int = 1000
     batch_size: int = 256
