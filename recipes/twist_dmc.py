@@ -18,7 +18,7 @@ Every method is evaluated on **held-out** textures (train colours, camera jitter
 once per episode), on the same seeds.
 
 Usage:
-    python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~30 min
+    python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~45 min
     python recipes/twist_dmc.py --preset tiny      # seconds, used by the tests
     python recipes/twist_dmc.py --preset paper     # six tasks x 3 seeds at 500K steps (GPU)
 """
