@@ -13,7 +13,9 @@ cache, so only a machine crash could lose a listed shard.)
 from __future__ import annotations
 
 import dataclasses
+import contextlib
 import functools
+import itertools
 import json
 import os
 import shutil
@@ -182,12 +184,13 @@ def _ray_shards(cfg: DatasetConfig, todo, expert, snapshots, max_in_flight: int 
     task = ray.remote(num_cpus=cfg.num_workers)(_ray_shard_task)
     limit = max_in_flight or max(1, int(ray.available_resources().get("CPU", 1)))
     expert_ref, snapshots_ref = ray.put(expert), ray.put(list(snapshots))
-    pending, queue = {}, list(todo)
-    while queue or pending:
-        while queue and len(pending) < limit:
-            shard = queue.pop(0)
-            pending[task.remote(cfg, shard, expert_ref, snapshots_ref)] = shard
+    pending, queue = {}, iter(todo)
+    for shard in itertools.islice(queue, limit):
+        pending[task.remote(cfg, shard, expert_ref, snapshots_ref)] = shard
+    while pending:
         done, _ = ray.wait(list(pending), num_returns=1)
+        for shard in itertools.islice(queue, 1):  # keep `limit` shards in flight
+            pending[task.remote(cfg, shard, expert_ref, snapshots_ref)] = shard
         yield pending.pop(done[0]), ray.get(done[0])
 
 
@@ -231,18 +234,20 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
     bar = tqdm(total=cfg.shards, initial=cfg.shards - len(todo), disable=not progress,
                desc="dataset shards")
     start = time.perf_counter()
-    for shard, rows in shards:
-        if data is None:  # the first shard fixes the layout of the memory map
-            template = rows[:1].expand(cfg.episodes, *rows.shape[1:])
-            data = template.memmap_like(out / "data")
-        data[shard * cfg.shard_episodes:(shard + 1) * cfg.shard_episodes] = rows
-        # Only after the shard's rows are written does the progress file list it.
-        meta["shards_done"] = sorted(meta["shards_done"] + [shard])
-        now = time.perf_counter()
-        meta["seconds"] += now - start
-        start = now
-        _write_json_atomic(meta_path, meta)
-        bar.update(1)
+    # closing(): an error while writing still closes the local env / stops the Ray loop
+    with contextlib.closing(shards):
+        for shard, rows in shards:
+            if data is None:  # the first shard fixes the layout of the memory map
+                template = rows[:1].expand(cfg.episodes, *rows.shape[1:])
+                data = template.memmap_like(out / "data")
+            data[shard * cfg.shard_episodes:(shard + 1) * cfg.shard_episodes] = rows
+            # Only after the shard's rows are written does the progress file list it.
+            meta["shards_done"] = sorted(meta["shards_done"] + [shard])
+            now = time.perf_counter()
+            meta["seconds"] += now - start
+            start = now
+            _write_json_atomic(meta_path, meta)
+            bar.update(1)
     bar.close()
     meta.update(transitions=cfg.episodes * cfg.episode_steps,
                 bytes=sum(f.stat().st_size for f in (out / "data").rglob("*") if f.is_file()))
