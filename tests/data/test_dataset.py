@@ -7,7 +7,8 @@ import torch
 from tensordict import TensorDict
 
 import simdist.data.dataset as dataset_module
-from simdist.data import DatasetConfig, generate_dataset, load_dataset
+from simdist.data import (DatasetConfig, collect_shards, generate_dataset, generate_shard,
+                          load_dataset)
 from simdist.experts import Expert
 
 CFG = DatasetConfig(episodes=6, shard_episodes=2, episode_steps=12, dynamics_randomisation=True)
@@ -47,22 +48,22 @@ def test_value_labels_equal_the_critic_on_stored_observations(reference, experts
 
 def test_killed_generation_resumes_without_duplicates_or_losses(tmp_path, experts, reference,
                                                                   monkeypatch):
-    real = dataset_module.generate_shard
+    real = dataset_module._label_shard
     calls = []
 
-    def crash_on_third(cfg, shard, *args, **kwargs):
+    def crash_on_third(cfg, shard, *args, **kwargs):  # a kill between two shards
         calls.append(shard)
         if shard == 2:
             raise KeyboardInterrupt("killed mid-run")
         return real(cfg, shard, *args, **kwargs)
 
-    monkeypatch.setattr(dataset_module, "generate_shard", crash_on_third)
+    monkeypatch.setattr(dataset_module, "_label_shard", crash_on_third)
     with pytest.raises(KeyboardInterrupt):
         generate_dataset(CFG, tmp_path, *experts, progress=False)
     assert json.loads((tmp_path / "meta.json").read_text())["shards_done"] == [0, 1]
     with pytest.raises(RuntimeError, match="incomplete"):
         load_dataset(tmp_path, slice_len=4, batch_size=8)
-    monkeypatch.setattr(dataset_module, "generate_shard", real)
+    monkeypatch.setattr(dataset_module, "_label_shard", real)
     generate_dataset(CFG, tmp_path, *experts, progress=False)  # the same command again
     resumed = TensorDict.load_memmap(tmp_path / "data")
     ref = TensorDict.load_memmap(reference / "data")
@@ -104,3 +105,14 @@ def test_worker_processes_give_a_deterministic_resumable_dataset(tmp_path, exper
 def test_unknown_backend_is_refused(tmp_path, experts):
     with pytest.raises(ValueError, match="unknown backend"):
         generate_dataset(CFG, tmp_path, *experts, progress=False, backend="dask")
+
+
+def test_one_collector_over_several_shards_equals_one_shard_at_a_time(experts):
+    # The collector's pre-collect hook reseeds env and policy per batch: shards taken in
+    # any order from one long-lived collector equal shards made each by a fresh one.
+    together = dict(collect_shards(CFG, [2, 0], *experts))
+    assert set(together) == {2, 0}
+    for shard, rows in together.items():
+        alone = generate_shard(CFG, shard, *experts)
+        assert (rows == alone).all()
+        assert torch.equal(rows["episode"][:, 0], torch.arange(2) + 2 * shard)

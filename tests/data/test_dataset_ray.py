@@ -42,17 +42,17 @@ def test_ray_shards_equal_local_shards(tmp_path, cluster, experts):
 
 
 def test_a_killed_local_run_resumes_on_ray(tmp_path, cluster, experts, monkeypatch):
-    real = dataset_module.generate_shard
+    real = dataset_module._label_shard
 
-    def crash_on_second(cfg, shard, *args, **kwargs):
+    def crash_on_second(cfg, shard, *args, **kwargs):  # a kill between two shards
         if shard == 1:
             raise KeyboardInterrupt("killed mid-run")
         return real(cfg, shard, *args, **kwargs)
 
-    monkeypatch.setattr(dataset_module, "generate_shard", crash_on_second)
+    monkeypatch.setattr(dataset_module, "_label_shard", crash_on_second)
     with pytest.raises(KeyboardInterrupt):
         generate_dataset(CFG, tmp_path / "run", *experts, progress=False)
-    monkeypatch.setattr(dataset_module, "generate_shard", real)
+    monkeypatch.setattr(dataset_module, "_label_shard", real)
     assert json.loads((tmp_path / "run" / "meta.json").read_text())["shards_done"] == [0]
     generate_dataset(CFG, tmp_path / "run", *experts, progress=False, backend="ray",
                      max_in_flight=1)

@@ -132,3 +132,8 @@ def test_bad_schedule_values(kwargs, message):
 def test_missing_init_tracker_is_a_clear_error():
     with pytest.raises(KeyError, match="InitTracker"):
         ActionPerturbation(1)(TensorDict({"action": torch.zeros(2, 1)}, [2]))
+
+
+def test_missing_action_is_a_clear_error():
+    with pytest.raises(KeyError, match="place it after the policy"):
+        ActionPerturbation(1)(TensorDict({"is_init": torch.ones(2, 1, dtype=torch.bool)}, [2]))

@@ -1,8 +1,9 @@
 """Data: perturbed-expert action schedules, policy mixtures and on-disk datasets."""
 
-from simdist.data.dataset import DatasetConfig, generate_dataset, generate_shard, load_dataset
+from simdist.data.dataset import (DatasetConfig, collect_shards, generate_dataset, generate_shard,
+                                  load_dataset, shard_seed)
 from simdist.data.mixture import EpisodeMixture
 from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 
 __all__ = ["ActionPerturbation", "PerturbationSchedule", "EpisodeMixture", "DatasetConfig",
-           "generate_dataset", "generate_shard", "load_dataset"]
+           "collect_shards", "generate_dataset", "generate_shard", "load_dataset", "shard_seed"]

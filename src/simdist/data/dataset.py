@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictSequential
+from torchrl.collectors import Collector
 from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
 from torchrl.envs import InitTracker, ParallelEnv, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -113,34 +114,39 @@ def make_generation_env(cfg: DatasetConfig):
     return make() if cfg.num_workers == 1 else ParallelEnv(cfg.num_workers, make)
 
 
-def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=(), env=None) -> TensorDict:
-    """Rolls out one shard: ``[shard_episodes, episode_steps]`` perturbed-expert steps.
+def shard_seed(cfg: DatasetConfig, shard: int) -> int:
+    """The seed every random draw of ``shard`` derives from (worlds, schedule, mixture)."""
+    return cfg.seed * 1_000_003 + shard
 
-    The shard depends only on ``(cfg, shard)``: the env is reseeded from them (every
-    world's initial state, randomisation draws and the schedules' generators), so a
-    reused ``env`` gives the same data as a fresh one.
+
+class _ShardSeeder:
+    """A collector's pre-collect hook: before each batch, reseeds for the next shard.
+
+    Reseeding the env (every world's initial state and randomisation draws) and the
+    policy's generators from ``(cfg, shard)`` alone makes a shard the same data whether
+    it is the first batch of a fresh collector or the tenth of a long-lived one.
     """
-    seed = cfg.seed * 1_000_003 + shard
-    base = env if env is not None else make_generation_env(cfg)
-    base.set_seed(seed)
-    env = TransformedEnv(base, InitTracker())
-    action_dim = env.action_spec.shape[-1]
-    policies = [expert.deterministic(), *[s.deterministic() for s in snapshots]]
-    probs = [1.0] if not snapshots else (
-        [cfg.final_expert_probability]
-        + [(1 - cfg.final_expert_probability) / len(snapshots)] * len(snapshots))
-    mixture = EpisodeMixture(policies, probs, seed=seed)
-    perturb = ActionPerturbation(action_dim, cfg.schedule, seed=seed)
-    env.append_transform(mixture.make_primer())
-    env.append_transform(perturb.make_primer())
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        td = env.rollout(cfg.episode_steps, TensorDictSequential(mixture, perturb),
-                         break_when_any_done=False)
-        td = td.reshape(cfg.shard_episodes, cfg.episode_steps)  # [workers, n, T] -> [E, T]
-        flat = td.reshape(-1)
-        td.set("value_target", expert.value(flat).reshape(*td.shape, 1))
+
+    def __init__(self, cfg: DatasetConfig, shards, env, generators):
+        self.cfg, self.env, self.generators = cfg, env, generators
+        self._shards = iter(shards)
+        self.current: int | None = None
+
+    def __call__(self) -> None:
+        self.current = next(self._shards)
+        seed = shard_seed(self.cfg, self.current)
+        self.env.set_seed(seed)
+        for generator in self.generators:
+            generator.manual_seed(seed)
+
+
+def _label_shard(cfg: DatasetConfig, shard: int, td: TensorDict, expert) -> TensorDict:
+    """Collector batch ``[*env_batch, T]`` -> stored rows ``[shard_episodes, T]``."""
+    td = td.reshape(cfg.shard_episodes, cfg.episode_steps)  # [workers, n, T] -> [E, T]
+    with torch.no_grad():
+        td.set("value_target", expert.value(td.reshape(-1)).reshape(*td.shape, 1))
     td.set("policy_index", td.get(("mixture", "policy")))
-    td = td.exclude("mixture", "perturbation", *[("next", k) for k in _DROP_NEXT])
+    td = td.exclude("collector", "mixture", "perturbation", *[("next", k) for k in _DROP_NEXT])
     episode = torch.arange(cfg.shard_episodes) + shard * cfg.shard_episodes
     # Shaped like the batch (no trailing 1): TorchRL's SliceSampler keys trajectories on it.
     td.set("episode", episode[:, None].expand(td.shape).clone())
@@ -148,14 +154,54 @@ def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=(), env=Non
     return td
 
 
-def _local_shards(cfg: DatasetConfig, todo, expert, snapshots):
-    """Yields ``(shard, data)`` in order, from one env reused across shards."""
-    env = make_generation_env(cfg)
+def collect_shards(cfg: DatasetConfig, shards, expert, snapshots=()):
+    """Yields ``(shard, rows)`` for each shard in ``shards``, from one TorchRL ``Collector``.
+
+    One collector batch is one shard: every world runs one whole episode
+    (``frames_per_batch = shard_episodes * episode_steps``, the env reset before each
+    batch). The policy is the per-episode :class:`EpisodeMixture` of the final expert and
+    ``snapshots`` followed by :class:`ActionPerturbation`, run deterministically and
+    batched in this process while ``cfg.num_workers`` processes step the worlds. A shard
+    depends only on ``(cfg, shard)`` (see :func:`shard_seed`), so a killed run resumes
+    exactly, and any backend that calls this gives the same bytes.
+    """
+    shards = list(shards)
+    if not shards:
+        return
+    env = TransformedEnv(make_generation_env(cfg), InitTracker())
+    policies = [expert.deterministic(), *[s.deterministic() for s in snapshots]]
+    probs = [1.0] if not snapshots else (
+        [cfg.final_expert_probability]
+        + [(1 - cfg.final_expert_probability) / len(snapshots)] * len(snapshots))
+    mixture = EpisodeMixture(policies, probs)
+    perturb = ActionPerturbation(env.action_spec.shape[-1], cfg.schedule)
+    env.append_transform(mixture.make_primer())
+    env.append_transform(perturb.make_primer())
+    seeder = _ShardSeeder(cfg, shards, env, [mixture.generator, perturb.generator])
+    frames = cfg.shard_episodes * cfg.episode_steps
+    collector = Collector(env, TensorDictSequential(mixture, perturb), frames_per_batch=frames,
+                          total_frames=frames * len(shards), reset_at_each_iter=True,
+                          exploration_type=ExplorationType.DETERMINISTIC,
+                          pre_collect_hook=seeder)
     try:
-        for shard in todo:
-            yield shard, generate_shard(cfg, shard, expert, snapshots, env)
+        for batch in collector:
+            yield seeder.current, _label_shard(cfg, seeder.current, batch, expert)
     finally:
-        env.close()
+        collector.shutdown(raise_on_error=False)  # also closes the env (and its workers)
+
+
+def generate_shard(cfg: DatasetConfig, shard: int, expert, snapshots=()) -> TensorDict:
+    """Rolls out one shard: ``[shard_episodes, episode_steps]`` perturbed-expert steps.
+
+    Examples:
+        >>> from simdist.experts import Expert
+        >>> cfg = DatasetConfig(episodes=2, shard_episodes=2, episode_steps=5)
+        >>> rows = generate_shard(cfg, 0, Expert.untrained(89, 12, hidden=8))
+        >>> rows.shape, rows["episode"][:, 0].tolist(), rows["value_target"].shape
+        (torch.Size([2, 5]), [0, 1], torch.Size([2, 5, 1]))
+    """
+    with contextlib.closing(collect_shards(cfg, [shard], expert, snapshots)) as shards:
+        return next(shards)[1]
 
 
 def _ray_shard_task(cfg: DatasetConfig, shard: int, expert, snapshots) -> TensorDict:
@@ -230,7 +276,7 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
         meta = {"config": config, "versions": _versions(), "shards_done": [], "seconds": 0.0}
     todo = [s for s in range(cfg.shards) if s not in meta["shards_done"]]
     shards = (_ray_shards(cfg, todo, expert, snapshots, max_in_flight) if backend == "ray"
-              else _local_shards(cfg, todo, expert, snapshots))
+              else collect_shards(cfg, todo, expert, snapshots))
     bar = tqdm(total=cfg.shards, initial=cfg.shards - len(todo), disable=not progress,
                desc="dataset shards")
     start = time.perf_counter()

@@ -41,7 +41,8 @@ class EpisodeMixture(TensorDictModuleBase):
         self.action_key, self.is_init_key = action_key, is_init_key
         self.in_keys = [is_init_key, ("mixture", "policy")]
         self.out_keys = [action_key, ("next", "mixture", "policy")]
-        self._generator = torch.Generator().manual_seed(seed)
+        # Public so a collector hook can reseed it per batch (see simdist.data.dataset).
+        self.generator = torch.Generator().manual_seed(seed)
 
     def make_primer(self) -> TensorDictPrimer:
         return TensorDictPrimer(Composite({"mixture": Composite({
@@ -55,7 +56,7 @@ class EpisodeMixture(TensorDictModuleBase):
         current = td.get(("mixture", "policy"), None)
         current = torch.zeros(shape, dtype=torch.int64) if current is None else current
         draw = torch.multinomial(self.probabilities, shape.numel(), replacement=True,
-                                 generator=self._generator).reshape(shape)
+                                 generator=self.generator).reshape(shape)
         choice = torch.where(is_init.bool(), draw.to(current.device), current)
         actions = torch.stack([p(td.clone(False)).get(self.action_key) for p in self.policies])
         index = choice.reshape(1, *choice.shape[:-1], 1).expand(1, *actions.shape[1:])

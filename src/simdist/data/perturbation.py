@@ -83,7 +83,8 @@ class ActionPerturbation(TensorDictModuleBase):
         self.in_keys = [action_key, is_init_key, *state]
         self.out_keys = [action_key, "expert_active", *[("next", *k) for k in state]]
         self.seed = seed
-        self._generator = torch.Generator().manual_seed(seed)
+        # Public so a collector hook can reseed it per batch (see simdist.data.dataset).
+        self.generator = torch.Generator().manual_seed(seed)
 
     def make_primer(self) -> TensorDictPrimer:
         """The env transform that creates and resets the schedule's state keys."""
@@ -95,15 +96,18 @@ class ActionPerturbation(TensorDictModuleBase):
         })}), default_value=0, expand_specs=True)
 
     def _uniform(self, shape, low, high, device):
-        return low + (high - low) * torch.rand(shape, generator=self._generator).to(device)
+        return low + (high - low) * torch.rand(shape, generator=self.generator).to(device)
 
     def _steps(self, shape, bounds, device):
         low, high = int(bounds[0]), int(bounds[1])
-        return torch.randint(low, high + 1, shape, generator=self._generator).to(device)
+        return torch.randint(low, high + 1, shape, generator=self.generator).to(device)
 
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         s = self.schedule
-        action = td.get(self.action_key)
+        action = td.get(self.action_key, None)
+        if action is None:
+            raise KeyError(f"ActionPerturbation needs {self.action_key!r}: place it after the "
+                           "policy that writes it")
         batch, dev = action.shape[:-1], action.device
         flag_shape = (*batch, 1)
         is_init = td.get(self.is_init_key, None)
@@ -133,7 +137,7 @@ class ActionPerturbation(TensorDictModuleBase):
                             self._steps(flag_shape, s.pause_range, dev))
         remaining = torch.where(flip, fresh, remaining) - 1
         noisy = on & ~never
-        eps = torch.randn(action.shape, generator=self._generator).to(dev)
+        eps = torch.randn(action.shape, generator=self.generator).to(dev)
         applied = torch.where(noisy, action + std * eps, action).clamp(s.action_low, s.action_high)
         td.set(self.action_key, applied)
         td.set("expert_active", ~noisy)
