@@ -17,6 +17,10 @@ finished stages and a killed stage resumes from its last checkpoint):
 Every method is evaluated on **held-out** textures (train colours, camera jitter; drawn
 once per episode), on the same seeds.
 
+The stages that need the teacher (teacher, oracle, students) form one chain; each pixel
+Dreamer is a chain of its own. ``--jobs 2`` (the default on two or more cores) runs the
+chains side by side in two processes, one torch thread each.
+
 Usage:
     python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~45 min
     python recipes/twist_dmc.py --preset tiny      # seconds, used by the tests
@@ -28,6 +32,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,7 +48,7 @@ from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer
                                evaluate_returns, load_episodes, mean_metrics, train_dreamer_online,
                                train_resumable)
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
-from simdist.utils import StageRunner, load_checkpoint
+from simdist.utils import StageRunner, load_checkpoint, run_jobs
 from simdist.viz.student_view import record_student_episode
 
 TWIST = "TWIST (student)"
@@ -213,6 +219,36 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 
 
 # -- the recipe -------------------------------------------------------------------------
+def _stage(runner: StageRunner, name: str, fn) -> dict:
+    if runner.done(name):
+        print(f"stage {name}: already done, reusing its results", flush=True)
+    return runner.run(name, fn)
+
+
+def teacher_chain(cfg: Config, task: str, seed: int) -> None:
+    """teacher -> oracle -> the three students: the stages that need the teacher."""
+    runner, key = StageRunner(cfg.output_dir, cfg), f"{task}_s{seed}"
+    teacher = _stage(runner, f"{key}_teacher", lambda d: teacher_stage(cfg, task, seed, d))
+
+    def oracle(d):
+        agent = load_teacher(cfg, task, teacher)
+        return evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
+                        pixels=False)
+
+    _stage(runner, f"{key}_oracle", oracle)
+    for suffix, (_, changes) in STUDENTS.items():
+        _stage(runner, f"{key}_{suffix}",
+               lambda d, c=changes: student_stage(cfg, task, seed, teacher, c, d))
+
+
+def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
+    """One pixel-Dreamer baseline: independent of the teacher, so it can run beside it."""
+    runner = StageRunner(cfg.output_dir, cfg)
+    visual = PIXEL_DREAMERS[suffix][1]
+    _stage(runner, f"{task}_s{seed}_{suffix}",
+           lambda d: pixel_dreamer_stage(cfg, task, seed, visual, d))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
@@ -220,6 +256,9 @@ def main(argv=None):
     parser.add_argument("--seeds", nargs="+", type=int)
     parser.add_argument("--eval-episodes", type=int)
     parser.add_argument("--output-dir")
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                        help="stages run side by side in this many processes (teacher chain "
+                             "beside the pixel Dreamers; default: 2, or 1 on one core)")
     args = parser.parse_args(argv)
     cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
     overrides = {k: v for k, v in (("tasks", args.tasks), ("seeds", args.seeds),
@@ -230,34 +269,28 @@ def main(argv=None):
     if unknown:
         parser.error(f"unknown control-suite tasks {unknown}; valid: "
                      f"{sorted(t for t in TASKS if not TASKS[t].is_robot)}")
+    if args.jobs < 1:
+        parser.error("--jobs must be >= 1")
     cfg.online()  # validates the budget before any work
     out = Path(cfg.output_dir)
-    runner = StageRunner(out, cfg)
+    runner = StageRunner(out, cfg)  # refuses a different config before any work starts
 
-    def stage(name, fn):
-        if runner.done(name):
-            print(f"stage {name}: already done, reusing its results")
-        return runner.run(name, fn)
+    # Longest chains first, so that two processes finish close together.
+    chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
+    chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
+               for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
+    start = time.perf_counter()
+    run_jobs(chains, args.jobs)
 
     results, records = {}, {}
     for task in cfg.tasks:
         methods = {}
         for seed in cfg.seeds:
             key = f"{task}_s{seed}"
-            teacher = stage(f"{key}_teacher", lambda d: teacher_stage(cfg, task, seed, d))
-
-            def oracle(d, task=task, seed=seed, teacher=teacher):
-                agent = load_teacher(cfg, task, teacher)
-                return evaluate(cfg, task, seed, agent.policy(explore=False),
-                                agent.make_primer(), pixels=False)
-
-            runs = {ORACLE: stage(f"{key}_oracle", oracle)}
-            for suffix, (name, changes) in STUDENTS.items():
-                runs[name] = stage(f"{key}_{suffix}", lambda d, c=changes: student_stage(
-                    cfg, task, seed, teacher, c, d))
-            for suffix, (name, visual) in PIXEL_DREAMERS.items():
-                runs[name] = stage(f"{key}_{suffix}", lambda d, v=visual: pixel_dreamer_stage(
-                    cfg, task, seed, v, d))
+            teacher = runner.result(f"{key}_teacher")
+            runs = {ORACLE: runner.result(f"{key}_oracle")}
+            for suffix, (name, _) in {**STUDENTS, **PIXEL_DREAMERS}.items():
+                runs[name] = runner.result(f"{key}_{suffix}")
             records[key] = {"teacher": teacher, **runs}
             for name, r in runs.items():
                 entry = methods.setdefault(name, {"returns": [], "seed_means": []})
@@ -268,13 +301,16 @@ def main(argv=None):
     recording = None
     if cfg.record:
         task, seed = cfg.tasks[0], cfg.seeds[0]
-        recording = stage("recording", lambda d: recording_stage(
+        recording = _stage(runner, "recording", lambda d: recording_stage(
             cfg, task, seed, records[f"{task}_s{seed}"]["teacher"], out))
+    wall = time.perf_counter() - start
     print("\n" + format_table(results))
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
+    print(f"wall time this run: {wall:.0f} s with {args.jobs} process(es)")
     (out / "results.json").write_text(json.dumps(
         {"config": dataclasses.asdict(cfg), "results": results, "summary": summarise(results),
-         "runs": records, "recording": recording, "timings_s": runner.timings}, indent=2))
+         "runs": records, "recording": recording, "timings_s": runner.timings,
+         "wall_s": wall, "jobs": args.jobs}, indent=2))
     plot_results(results, out / "returns.png")
     print(f"wrote {out / 'results.json'} and {out / 'returns.png'}")
     if recording:

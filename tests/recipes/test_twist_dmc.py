@@ -21,7 +21,7 @@ def _run(*args, timeout=300):
 
 
 def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
-    proc = _run("--preset", "tiny", "--output-dir", tmp_path)
+    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 2)
     assert proc.returncode == 0, proc.stderr
     results = json.loads((tmp_path / "results.json").read_text())
     task = results["results"]["cartpole-balance"]
@@ -51,7 +51,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert "/student/view" in paths and "/latent/belief_distance" in paths
     assert any(p.startswith("/state/from_student_latent/") for p in paths)
 
-    again = _run("--preset", "tiny", "--output-dir", tmp_path)
+    # stages ran in two processes (the teacher chain beside the pixel Dreamers)
+    assert results["jobs"] == 2 and "wall time this run" in proc.stdout
+
+    again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1)  # in-process
     assert again.returncode == 0, again.stderr
     assert again.stdout.count("already done") == 8  # 7 stages per task-seed + recording
     changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)

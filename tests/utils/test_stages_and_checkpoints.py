@@ -4,7 +4,7 @@ import os
 import pytest
 import torch
 
-from simdist.utils import StageRunner, load_checkpoint, save_atomic
+from simdist.utils import StageRunner, load_checkpoint, run_jobs, save_atomic
 
 
 def test_finished_stages_are_skipped_and_killed_ones_rerun(tmp_path):
@@ -60,3 +60,20 @@ def test_checkpoints_never_run_pickled_code(tmp_path):
     torch.save({"x": Payload()}, path)
     with pytest.raises(Exception, match="[Ww]eights only"):
         load_checkpoint(path)
+
+
+def test_stage_result_reads_finished_stages_only(tmp_path):
+    runner = StageRunner(tmp_path, {"seed": 0})
+    with pytest.raises(KeyError, match="has not finished"):
+        runner.result("teacher")
+    runner.run("teacher", lambda d: {"return": 5})
+    assert StageRunner(tmp_path, {"seed": 0}).result("teacher") == {"return": 5}
+
+
+def test_run_jobs_in_processes_keeps_order_and_raises_the_first_error():
+    calls = [(pow, (2, 10)), (divmod, (7, 2)), (max, (3, 9))]
+    assert run_jobs(calls, jobs=2) == run_jobs(calls, jobs=1) == [1024, (3, 1), 9]
+    with pytest.raises(ZeroDivisionError):
+        run_jobs([(pow, (2, 3)), (divmod, (1, 0))], jobs=2)
+    with pytest.raises(ValueError, match="jobs must be >= 1"):
+        run_jobs(calls, jobs=0)

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import multiprocessing
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 
 def _atomic_json(path: Path, payload: Any) -> None:
@@ -72,3 +75,53 @@ class StageRunner:
         self.timings[name] = seconds
         _atomic_json(record, {"result": result, "seconds": seconds})
         return result
+
+    def result(self, name: str) -> dict:
+        """The stored result of a finished stage (its timing is recorded too).
+
+        Raises:
+            KeyError: if the stage has not finished.
+        """
+        if not self.done(name):
+            raise KeyError(f"stage {name!r} has not finished under {self.out}")
+        return self.run(name, lambda d: {})
+
+
+def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
+    """Runs independent ``(fn, args)`` calls, ``jobs`` at a time; returns their results in order.
+
+    ``jobs=1`` calls them here, in order. Otherwise each runs in one of ``jobs`` spawned
+    worker processes (``fn`` must be importable: a module-level function), each with
+    ``cpu_count // jobs`` torch threads, so that e.g. two recipe stages that do not need
+    each other's results share a 2-core machine instead of queueing. On an error, calls not
+    yet started are cancelled, those running finish (a recipe stage keeps what it
+    checkpointed), then the first error is raised.
+
+    Examples:
+        >>> run_jobs([(pow, (2, 3)), (divmod, (7, 2))])
+        [8, (3, 1)]
+        >>> run_jobs([(pow, (2, 3)), (divmod, (7, 2))], jobs=2)
+        [8, (3, 1)]
+    """
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if jobs == 1 or len(calls) <= 1:
+        return [fn(*args) for fn, args in calls]
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    # spawn, not fork: forked children of a process that already ran torch/OpenMP or
+    # opened a GL context can deadlock.
+    pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_init_worker, initargs=(threads,))
+    try:
+        futures = [pool.submit(fn, *args) for fn, args in calls]
+        return [future.result() for future in futures]
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    finally:
+        pool.shutdown(wait=True)
+
+
+def _init_worker(threads: int) -> None:
+    import torch
+    torch.set_num_threads(threads)
