@@ -70,13 +70,17 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pixels", action="store_true")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--shard-episodes", type=int, default=32,
+                        help="worlds stepped together in one process (state-only rows)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    state_cfg = DatasetConfig(episodes=96, shard_episodes=32, episode_steps=250)
+    state_cfg = DatasetConfig(episodes=3 * args.shard_episodes,
+                              shard_episodes=args.shard_episodes, episode_steps=250)
     raw, ours, bytes_per_m = paired(lambda: raw_rate(3000), lambda: simdist_rate(state_cfg),
                                     args.repeats)
     print(f"raw dm_control quadruped loop             {raw:8.0f} steps/s")
-    print(f"simdist dataset generation (state)        {ours:8.0f} transitions/s  "
+    print(f"simdist dataset generation (state, {args.shard_episodes} worlds per shard)")
+    print(f"                                          {ours:8.0f} transitions/s  "
           f"{ours / raw:.2f}x raw   {bytes_per_m / 1e9:.2f} GB per million transitions")
     if args.pixels:
         pixel_cfg = DatasetConfig(episodes=8, shard_episodes=4, episode_steps=100, pixels=True)

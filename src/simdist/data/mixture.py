@@ -58,8 +58,16 @@ class EpisodeMixture(TensorDictModuleBase):
         draw = torch.multinomial(self.probabilities, shape.numel(), replacement=True,
                                  generator=self.generator).reshape(shape)
         choice = torch.where(is_init.bool(), draw.to(current.device), current)
-        actions = torch.stack([p(td.clone(False)).get(self.action_key) for p in self.policies])
+        # Each policy sees only the keys it reads (when it declares them): cheaper than a
+        # shallow clone of the whole step, which carries every observation and state key.
+        actions = torch.stack([p(self._inputs(td, p)).get(self.action_key)
+                               for p in self.policies])
         index = choice.reshape(1, *choice.shape[:-1], 1).expand(1, *actions.shape[1:])
         td.set(self.action_key, actions.gather(0, index)[0])
         td.set(("next", "mixture", "policy"), choice)
         return td
+
+    @staticmethod
+    def _inputs(td: TensorDictBase, policy) -> TensorDictBase:
+        keys = getattr(policy, "in_keys", None)
+        return td.select(*keys, strict=False) if keys else td.clone(False)
