@@ -30,6 +30,10 @@ def test_dataset_layout_and_metadata(reference, experts):
     assert data.shape == (6, 12)
     assert torch.equal(data["episode"][:, 0], torch.arange(6))
     assert data["is_init"][:, 0].all() and not data["is_init"][:, 1:].any()
+    # each episode ends (truncated, not terminated) exactly at its last stored step
+    for key in (("next", "truncated"), ("next", "done")):
+        assert data[key][:, -1].all() and not data[key][:, :-1].any(), key
+    assert not data["next", "terminated"].any() and not data["done"].any()
     meta = json.loads((reference / "meta.json").read_text())
     assert meta["shards_done"] == [0, 1, 2] and meta["transitions"] == 72
     assert meta["versions"]["torchrl"] == "0.14.1" and meta["bytes"] > 0
