@@ -60,6 +60,18 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
     assert changed.returncode != 0 and "different config" in changed.stderr
 
+    # the gap-diagnosis script runs on a finished recipe output
+    for variant in ("state", "probe"):
+        diag = subprocess.run(
+            [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
+             "--preset", "tiny", "--outputs", str(tmp_path), "--updates", "2",
+             "--episodes", "1", "--batch", "4", "--work", str(tmp_path / "diagnosis")],
+            capture_output=True, text=True, timeout=300)
+        assert diag.returncode == 0, diag.stderr
+        line = json.loads(diag.stdout.strip().splitlines()[-1])
+        assert line["variant"] == variant and line["updates"] == 2
+        assert ("mean" in line) if variant == "state" else len(line["r2_test"]) == 5
+
 
 def test_unknown_task_is_a_clear_error(tmp_path):
     proc = _run("--preset", "tiny", "--tasks", "cartpole-fly", "--output-dir", tmp_path)

@@ -1,0 +1,155 @@
+"""Where does a TWIST student lose return? Experiments on a finished ``twist_dmc`` run.
+
+Reads the teacher stage a ``recipes/twist_dmc.py`` run left in ``--outputs`` (its
+checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
+
+- ``state``: the same distillation (Eq. 3 + Eq. 4, same budget) but the student RSSM
+  reads the privileged *state* instead of pixels, evaluated on state: what distillation
+  gives with perfect perception.
+- ``pixels``: the recipe's student again, at other update budgets.
+- ``init``: the pixel student with its RSSM (all but the encoder-facing layers whose
+  shapes differ) initialised from the teacher's weights.
+- ``probe``: the student's CNN trained *supervised* to regress the state from one
+  randomised image (5/6 of D's images to train, 1/6 held out); prints R^2 per state
+  dimension: can the encoder see what the teacher's latent needs?
+
+Every figure in the README's TWIST "honest reading" comes from this script.
+
+Usage:
+    python recipes/twist_dmc.py                                  # first, the recipe
+    python benchmarks/twist_diagnosis.py state --updates 300,900
+    python benchmarks/twist_diagnosis.py pixels --updates 300,900 [--lr 1e-3]
+    python benchmarks/twist_diagnosis.py init --updates 300,600
+    python benchmarks/twist_diagnosis.py probe --updates 1500 --batch 400
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
+import twist_dmc as recipe  # noqa: E402  (the recipe's config and stage helpers)
+from simdist.agents import DreamerPolicy, TwistConfig, TwistStudent  # noqa: E402
+from simdist.modules import DreamerWorldModel  # noqa: E402
+from simdist.pipelines import (EpisodeReplay, evaluate_returns, load_episodes,  # noqa: E402
+                               mean_metrics, train_resumable)
+
+
+def teacher_stage(outputs: Path, task: str, seed: int) -> dict:
+    path = outputs / "stages" / f"{task}_s{seed}_teacher.json"
+    if not path.exists():
+        raise FileNotFoundError(f"no finished teacher stage at {path}: run "
+                                f"`python recipes/twist_dmc.py --output-dir {outputs}` first")
+    return json.loads(path.read_text())["result"]
+
+
+def make_student(variant: str, cfg, task: str, teacher, lr: float | None) -> TwistStudent:
+    overrides = {} if lr is None else {"lr": lr}
+    if variant == "state":
+        state_dim, action_dim = recipe.state_dim(task)
+        student = DreamerWorldModel.teacher(state_dim, action_dim, cfg.model_size)
+        student.decoder = student.reward_head = None  # a student learns neither
+        config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
+                             max_imagination_starts=cfg.imagination_starts, **overrides)
+        return TwistStudent(teacher, student, config, pixels_key=("next", "state"))
+    twist = recipe.new_student(cfg, task, teacher, overrides)
+    if variant == "init":
+        own = twist.student.rssm.state_dict()
+        same = {k: v for k, v in teacher.world_model.rssm.state_dict().items()
+                if own[k].shape == v.shape}
+        twist.student.rssm.load_state_dict(same, strict=False)
+        print(f"copied {len(same)}/{len(own)} RSSM tensors from the teacher", flush=True)
+    return twist
+
+
+def distil(args, cfg, teacher_result: dict) -> None:
+    torch.manual_seed(args.seed)
+    teacher = recipe.load_teacher(cfg, args.task, teacher_result)
+    twist = make_student(args.variant, cfg, args.task, teacher, args.lr)
+    replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
+                           cfg.student_slices)
+    for episode in load_episodes(teacher_result["data"]):
+        replay.add(episode.to_tensordict())
+    stage = args.work / f"{args.variant}_lr{args.lr}"
+    for updates in args.updates:  # cumulative: resumes from the previous budget
+        start = time.perf_counter()
+        history = train_resumable(twist.update, replay.sample, updates, {"twist": twist},
+                                  stage / "student.pt", every=100, desc=args.variant)
+        seconds = time.perf_counter() - start
+        if args.variant == "state":
+            policy = DreamerPolicy(twist.student, teacher.actor, "state", explore=False)
+            result = evaluate_returns(args.task, policy, twist.make_primer(),
+                                      args.seed + 10_000, args.episodes, cfg.eval_steps,
+                                      False, None)
+        else:
+            cfg_eval = dataclasses.replace(cfg, eval_episodes=args.episodes)
+            result = recipe.evaluate(cfg_eval, args.task, args.seed, twist.policy(),
+                                     twist.make_primer(), pixels=True)
+        print(json.dumps({"variant": args.variant, "updates": updates, "lr": args.lr,
+                          "mean": result["mean"], "std": result["std"],
+                          "train_s": round(seconds, 1), "last": mean_metrics(history, 50)}),
+              flush=True)
+
+
+def probe(args, cfg, teacher_result: dict) -> None:
+    torch.manual_seed(args.seed)
+    episodes = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
+    pixels = torch.cat([e["next", "pixels"].flatten(0, -4) for e in episodes])
+    states = torch.cat([e["next", "state"].flatten(0, -2) for e in episodes])
+    order = torch.randperm(len(pixels))
+    test, train = order[: len(order) // 6], order[len(order) // 6:]
+    encoder = DreamerWorldModel.student(1, cfg.model_size).encoder
+    head = torch.nn.Linear(encoder(pixels[:2]).shape[-1], states.shape[-1])
+    optim = torch.optim.Adam([*encoder.parameters(), *head.parameters()], lr=args.lr or 3e-4)
+    mean, std = states[train].mean(0), states[train].std(0)
+
+    def r2(index) -> list[float]:
+        with torch.no_grad():
+            target = (states[index] - mean) / std
+            error = (head(encoder(pixels[index])) - target).pow(2).mean(0)
+            return [round(x, 2) for x in (1 - error / target.var(0)).tolist()]
+
+    start = time.perf_counter()
+    for step in range(1, args.updates[-1] + 1):
+        batch = train[torch.randint(len(train), (args.batch,))]
+        loss = (head(encoder(pixels[batch])) - (states[batch] - mean) / std).pow(2).mean()
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+        if step in args.updates or step % 300 == 0:
+            print(json.dumps({"variant": "probe", "updates": step, "images_train": len(train),
+                              "images_test": len(test), "r2_test": r2(test),
+                              "r2_train": r2(train[: len(test)]),
+                              "seconds": round(time.perf_counter() - start, 1)}), flush=True)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("variant", choices=["state", "pixels", "init", "probe"])
+    parser.add_argument("--outputs", type=Path, default=Path("outputs/twist_dmc"))
+    parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS))
+    parser.add_argument("--task", default="cartpole-balance")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--updates", default="300,900",
+                        type=lambda s: sorted(int(x) for x in s.split(",")))
+    parser.add_argument("--lr", type=float, default=None, help="default: the recipe's")
+    parser.add_argument("--episodes", type=int, default=6, help="held-out evaluation episodes")
+    parser.add_argument("--batch", type=int, default=400, help="probe: images per update")
+    parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS[args.preset])
+    teacher_result = teacher_stage(args.outputs, args.task, args.seed)
+    (probe if args.variant == "probe" else distil)(args, cfg, teacher_result)
+
+
+if __name__ == "__main__":
+    main()
