@@ -92,10 +92,17 @@ def returns_stats(td: TensorDict) -> dict:
 def evaluate_returns(task: str, policy, primer, seed: int, episodes: int, steps: int,
                      pixels: bool, visual: VisualRandomisation | None) -> dict:
     """Returns of ``policy`` over ``episodes`` parallel worlds (the same seeds for every
-    method, so every method meets the same initial states and the same scenes)."""
+    method, so every method meets the same initial states and the same scenes).
+
+    Torch's random draws during the rollout (a Dreamer policy samples its latent) come
+    from ``seed`` too, inside a forked generator state: the figure depends on the policy
+    and ``seed`` alone, not on what ran before, and the caller's stream is untouched.
+    """
     env = control_env(task, seed, pixels=pixels, visual=visual, num_envs=episodes,
                       max_episode_steps=steps, primer=primer)
     try:
-        return returns_stats(rollout(env, policy, steps))
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            return returns_stats(rollout(env, policy, steps))
     finally:
         env.close()
