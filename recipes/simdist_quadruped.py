@@ -18,7 +18,7 @@ Usage:
     python recipes/simdist_quadruped.py                  # small CPU default (~30 min)
     python recipes/simdist_quadruped.py --preset tiny    # seconds, used by the tests
     python recipes/simdist_quadruped.py --target foam --episodes 9
-    python recipes/simdist_quadruped.py --preset paper   # reference scales, for a GPU
+    python recipes/simdist_quadruped.py --preset paper --device cuda  # reference scales
     python recipes/simdist_quadruped.py --retrain-expert # hours on 2 CPU cores
 """
 
@@ -45,7 +45,7 @@ from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, train_resumable)
 from simdist.pipelines.report import plot_results, print_table
-from simdist.utils import StageRunner, load_checkpoint, save_atomic
+from simdist.utils import StageRunner, load_checkpoint, resolve_device, save_atomic
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -92,6 +92,9 @@ class Config:
     finetune_lr: float = 1e-4
     sac_batch_size: int = 256
     output_dir: str = "outputs/simdist_quadruped"
+    # where the world model and probe train and plan ("cpu", "cuda", "auto"); envs, the
+    # dataset, the expert and the SAC baseline stay on the CPU. Not part of the results.
+    device: str = "cpu"
 
     def planner(self) -> PlannerConfig:
         return PlannerConfig(horizon=self.planner_horizon, num_samples=self.planner_samples,
@@ -166,7 +169,7 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int) -> SimDistAgent:
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
-                                          value_weight=cfg.value_weight))
+                                          value_weight=cfg.value_weight)).to(cfg.device)
 
 
 def pretrain_stage(cfg: Config, dataset: str, stage_dir: Path) -> dict:
@@ -282,12 +285,13 @@ def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path) ->
     agent = load_agent(cfg, pretrained)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
     state_dim = buffer.storage._storage["state"].shape[-1]
-    probe = StateDecoder(agent.world_model.latent_dim, state_dim, hidden=256, layers=2)
+    probe = StateDecoder(agent.world_model.latent_dim, state_dim, hidden=256,
+                         layers=2).to(cfg.device)
     loss = ProbeLoss(agent.world_model.encode_sequence, probe)
     optim = torch.optim.Adam(loss.trainable_parameters(), lr=1e-3)
 
     def update(batch):
-        out = loss(batch)
+        out = loss(batch.to(cfg.device))
         optim.zero_grad(set_to_none=True)
         out["loss_probe"].backward()
         optim.step()
@@ -309,6 +313,7 @@ def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out
         probe_net = StateDecoder(agent.world_model.latent_dim, probe["state_dim"], hidden=256,
                                  layers=2)
         probe_net.load_state_dict(load_checkpoint(probe["path"]))
+        probe_net.to(cfg.device)
         env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, cfg.seed + 10_000,
                              primers=[agent.make_primer()], task=cfg.task)
         spec = env.action_spec
@@ -329,19 +334,27 @@ def main(argv=None):
     parser.add_argument("--expert", help=f"expert checkpoint (default {DEFAULT_EXPERT})")
     parser.add_argument("--retrain-expert", action="store_true")
     parser.add_argument("--output-dir")
+    parser.add_argument("--device", default="cpu",
+                        help="where the world model trains and plans: cpu, cuda, cuda:N, auto")
     args = parser.parse_args(argv)
     cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
     overrides = {k: v for k, v in (("target", args.target), ("episodes", args.episodes),
                                    ("expert", args.expert), ("output_dir", args.output_dir))
                  if v is not None}
-    cfg = dataclasses.replace(cfg, retrain_expert=args.retrain_expert, **overrides)
+    try:
+        device = str(resolve_device(args.device))
+    except ValueError as err:
+        parser.error(str(err))
+    cfg = dataclasses.replace(cfg, retrain_expert=args.retrain_expert, device=device,
+                              **overrides)
     unknown = [t for t in {cfg.target, *cfg.expert_targets} if t not in TARGETS]
     if unknown:
         parser.error(f"unknown targets {sorted(unknown)}; valid: {sorted(TARGETS)}")
     if cfg.target not in cfg.expert_targets:
         cfg.expert_targets = [*cfg.expert_targets, cfg.target]
     out = Path(cfg.output_dir)
-    runner = StageRunner(out, cfg)  # finished stages are skipped when rerun
+    # finished stages are skipped when rerun; the device may differ from the first run's
+    runner = StageRunner(out, cfg, runtime_keys=("device",))
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
     def stage(name, fn):

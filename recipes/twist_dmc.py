@@ -24,7 +24,7 @@ chains side by side in two processes, one torch thread each.
 Usage:
     python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~27 min
     python recipes/twist_dmc.py --preset tiny      # seconds, used by the tests
-    python recipes/twist_dmc.py --preset paper     # six tasks x 3 seeds at 500K steps (GPU)
+    python recipes/twist_dmc.py --preset paper --device cuda   # six tasks x 3 seeds, 500K steps
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer
                                evaluate_returns, load_episodes, mean_metrics, train_dreamer_online,
                                train_resumable)
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
-from simdist.utils import StageRunner, load_checkpoint, run_jobs
+from simdist.utils import StageRunner, load_checkpoint, resolve_device, run_jobs
 from simdist.viz.student_view import record_student_episode
 
 TWIST = "TWIST (student)"
@@ -93,6 +93,9 @@ class Config:
     eval_steps: int = 500
     record: bool = True
     output_dir: str = "outputs/twist_dmc"
+    # where the networks train and act ("cpu", "cuda", "auto"); envs, rendering and
+    # replay stay on the CPU. Not part of the results: a run may resume on another device.
+    device: str = "cpu"
 
     def online(self, pixels: bool = False) -> OnlineConfig:
         return OnlineConfig(env_steps=self.env_steps, prefill_steps=self.prefill_steps,
@@ -133,7 +136,7 @@ def state_dim(task: str) -> int:
 
 
 def teacher_agent(cfg: Config, task: str) -> DreamerAgent:
-    return DreamerAgent.for_state(*state_dim(task), cfg.dreamer())
+    return DreamerAgent.for_state(*state_dim(task), cfg.dreamer()).to(cfg.device)
 
 
 def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
@@ -167,7 +170,7 @@ def new_student(cfg: Config, task: str, teacher: DreamerAgent, overrides: dict) 
     student = DreamerWorldModel.student(teacher.actor.action_dim, cfg.model_size)
     config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
                          max_imagination_starts=cfg.imagination_starts)
-    return TwistStudent(teacher, student, dataclasses.replace(config, **overrides))
+    return TwistStudent(teacher, student, dataclasses.replace(config, **overrides)).to(cfg.device)
 
 
 def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
@@ -191,7 +194,7 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
 
 def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Path) -> dict:
     torch.manual_seed(seed)
-    agent = DreamerAgent.for_pixels(state_dim(task)[1], cfg.dreamer())
+    agent = DreamerAgent.for_pixels(state_dim(task)[1], cfg.dreamer()).to(cfg.device)
     env = control_env(task, seed, pixels=True, visual=visual,
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
     out = train_dreamer_online(agent, env, cfg.online(pixels=True), stage_dir,
@@ -219,6 +222,10 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 
 
 # -- the recipe -------------------------------------------------------------------------
+def stage_runner(cfg: Config) -> StageRunner:
+    return StageRunner(cfg.output_dir, cfg, runtime_keys=("device",))
+
+
 def _stage(runner: StageRunner, name: str, fn) -> dict:
     if runner.done(name):
         print(f"stage {name}: already done, reusing its results", flush=True)
@@ -227,7 +234,7 @@ def _stage(runner: StageRunner, name: str, fn) -> dict:
 
 def teacher_chain(cfg: Config, task: str, seed: int) -> None:
     """teacher -> oracle -> the three students: the stages that need the teacher."""
-    runner, key = StageRunner(cfg.output_dir, cfg), f"{task}_s{seed}"
+    runner, key = stage_runner(cfg), f"{task}_s{seed}"
     teacher = _stage(runner, f"{key}_teacher", lambda d: teacher_stage(cfg, task, seed, d))
 
     def oracle(d):
@@ -243,7 +250,7 @@ def teacher_chain(cfg: Config, task: str, seed: int) -> None:
 
 def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
     """One pixel-Dreamer baseline: independent of the teacher, so it can run beside it."""
-    runner = StageRunner(cfg.output_dir, cfg)
+    runner = stage_runner(cfg)
     visual = PIXEL_DREAMERS[suffix][1]
     _stage(runner, f"{task}_s{seed}_{suffix}",
            lambda d: pixel_dreamer_stage(cfg, task, seed, visual, d))
@@ -256,6 +263,8 @@ def main(argv=None):
     parser.add_argument("--seeds", nargs="+", type=int)
     parser.add_argument("--eval-episodes", type=int)
     parser.add_argument("--output-dir")
+    parser.add_argument("--device", default="cpu",
+                        help="where networks train and act: cpu, cuda, cuda:N or auto")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="stages run side by side in this many processes (teacher chain "
                              "beside the pixel Dreamers; default: 2, or 1 on one core)")
@@ -264,7 +273,11 @@ def main(argv=None):
     overrides = {k: v for k, v in (("tasks", args.tasks), ("seeds", args.seeds),
                                    ("eval_episodes", args.eval_episodes),
                                    ("output_dir", args.output_dir)) if v is not None}
-    cfg = dataclasses.replace(cfg, **overrides)
+    try:
+        device = str(resolve_device(args.device))
+    except ValueError as err:
+        parser.error(str(err))
+    cfg = dataclasses.replace(cfg, device=device, **overrides)
     unknown = [t for t in cfg.tasks if t not in TASKS or TASKS[t].is_robot]
     if unknown:
         parser.error(f"unknown control-suite tasks {unknown}; valid: "
@@ -273,7 +286,7 @@ def main(argv=None):
         parser.error("--jobs must be >= 1")
     cfg.online()  # validates the budget before any work
     out = Path(cfg.output_dir)
-    runner = StageRunner(out, cfg)  # refuses a different config before any work starts
+    runner = stage_runner(cfg)  # refuses a different config before any work starts
 
     # Longest chains first, so that two processes finish close together.
     chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]

@@ -87,3 +87,6 @@ def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path):
     assert proc.returncode != 0 and "unknown targets ['moon']" in proc.stderr
     proc = _run("--preset", "tiny", "--expert", tmp_path / "none.pt", "--output-dir", tmp_path / "b")
     assert proc.returncode != 0 and "recipes/train_expert.py" in proc.stderr
+    proc = _run("--preset", "tiny", "--device", "tpu9", "--output-dir", tmp_path / "c")
+    assert proc.returncode == 2 and "unknown device 'tpu9'" in proc.stderr
+    assert not (tmp_path / "c").exists()  # refused before any work

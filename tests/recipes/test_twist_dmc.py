@@ -76,3 +76,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
 def test_unknown_task_is_a_clear_error(tmp_path):
     proc = _run("--preset", "tiny", "--tasks", "cartpole-fly", "--output-dir", tmp_path)
     assert proc.returncode != 0 and "unknown control-suite tasks" in proc.stderr
+
+
+def test_an_unavailable_device_is_a_clear_error_before_any_work(tmp_path):
+    device = "cuda:99"  # more CUDA devices than any machine here has
+    proc = _run("--preset", "tiny", "--device", device, "--output-dir", tmp_path / "run")
+    assert proc.returncode == 2 and f"device '{device}' asked for" in proc.stderr
+    assert not (tmp_path / "run").exists()

@@ -4,7 +4,8 @@ import os
 import pytest
 import torch
 
-from simdist.utils import StageRunner, load_checkpoint, run_jobs, save_atomic
+from simdist.utils import (StageRunner, load_checkpoint, move_to_device, resolve_device,
+                           run_jobs, save_atomic)
 
 
 def test_finished_stages_are_skipped_and_killed_ones_rerun(tmp_path):
@@ -34,6 +35,40 @@ def test_a_different_config_is_refused(tmp_path):
     StageRunner(tmp_path, {"seed": 1, "steps": 5})
     with pytest.raises(ValueError, match="changed: \\['steps'\\]"):
         StageRunner(tmp_path, {"seed": 1, "steps": 6})
+
+
+def test_runtime_keys_may_change_between_runs_but_nothing_else(tmp_path):
+    keys = ("device",)
+    StageRunner(tmp_path, {"seed": 1, "device": "cpu"}, runtime_keys=keys)
+    StageRunner(tmp_path, {"seed": 1, "device": "cuda"}, runtime_keys=keys)  # resumes
+    with pytest.raises(ValueError, match="changed: \\['seed'\\]"):
+        StageRunner(tmp_path, {"seed": 2, "device": "cuda"}, runtime_keys=keys)
+    with pytest.raises(ValueError, match="device"):
+        StageRunner(tmp_path, {"seed": 1, "device": "cuda"})  # only when declared
+
+
+def test_moved_optimiser_keeps_its_state_on_the_new_parameters():
+    net = torch.nn.Linear(3, 2)
+    optim = torch.optim.Adam(net.parameters())
+    net(torch.ones(4, 3)).sum().backward()
+    optim.step()
+    exp_avg = optim.state[net.weight]["exp_avg"].clone()
+    move_to_device([net], [optim], "meta")  # Module.to makes new Parameters for meta
+    assert [id(p) for p in optim.param_groups[0]["params"]] == [id(net.weight), id(net.bias)]
+    state = optim.state[net.weight]
+    assert state["exp_avg"].device.type == "meta" and state["exp_avg"].shape == exp_avg.shape
+    assert state["step"].device.type == "cpu"  # Adam keeps its step counter on the host
+    assert len(optim.state) == 2
+
+
+def test_device_names_are_checked_before_any_work():
+    assert resolve_device("cpu") == torch.device("cpu")
+    with pytest.raises(ValueError, match="unknown device"):
+        resolve_device("gpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="0 CUDA device"):
+            resolve_device("cuda")
+        assert resolve_device("auto") == torch.device("cpu")
 
 
 def test_atomic_save_keeps_the_old_file_when_writing_fails(tmp_path):

@@ -20,6 +20,7 @@ from torchrl.envs import TensorDictPrimer
 from simdist.modules import Actor, DreamerWorldModel, ScalarHead
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss
+from simdist.utils.device import module_device, move_to_device
 
 
 @dataclass
@@ -78,15 +79,21 @@ class DreamerPolicy(TensorDictModuleBase):
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         rssm = self.world_model.rssm
         obs = td.get(self.obs_key)
+        # Inputs go to the model's device and outputs come back to the env's, so a model
+        # on a GPU acts in a CPU env (the recurrent state rides in the env's TensorDict).
+        home, device = obs.device, module_device(self.world_model)
+        obs = obs.to(device)
         batch = obs.shape[: obs.dim() - self.obs_event_dims]
         is_init = td.get("is_init", None)
         if is_init is None:
             raise KeyError("DreamerPolicy needs 'is_init': add torchrl.envs.InitTracker()")
-        keep = (~is_init.reshape(*batch, 1).bool()).float()
+        keep = (~is_init.to(device).reshape(*batch, 1).bool()).float()
 
         def get(key, size):
             value = td.get(("agent", key), None)
-            return torch.zeros(*batch, size) if value is None else value.reshape(*batch, size)
+            if value is None:
+                return torch.zeros(*batch, size, device=device)
+            return value.to(device).reshape(*batch, size)
 
         state = RSSMState(get("belief", rssm.deter_dim), get("stoch", rssm.stoch_dim))
         embed = self.world_model.encoder(obs)
@@ -94,9 +101,10 @@ class DreamerPolicy(TensorDictModuleBase):
         action = self.actor(state.features())
         if self.noise:
             action = (action + self.noise * torch.randn_like(action)).clamp(-1, 1)
+        action = action.to(home)
         td.set("action", action)
-        td.set(("next", "agent", "belief"), state.belief)
-        td.set(("next", "agent", "stoch"), state.stoch)
+        td.set(("next", "agent", "belief"), state.belief.to(home))
+        td.set(("next", "agent", "stoch"), state.stoch.to(home))
         td.set(("next", "agent", "prev_action"), action)
         return td
 
@@ -146,6 +154,20 @@ class DreamerAgent:
         return DreamerPolicy(self.world_model, self.actor, self.obs_key, self.obs_event_dims,
                              self.config.exploration_noise, explore)
 
+    @property
+    def device(self) -> torch.device:
+        return module_device(self.world_model)
+
+    def to(self, device: str | torch.device) -> DreamerAgent:
+        """Moves every network (target critic included) to ``device``; returns ``self``.
+
+        The optimisers keep training the moved parameters (see
+        :func:`~simdist.utils.device.move_to_device`); ``update`` moves each batch there.
+        """
+        move_to_device([self.world_model, self.actor, self.critic, self.behaviour_loss],
+                       [self.model_optim, self.actor_optim, self.critic_optim], device)
+        return self
+
     def state_dict(self) -> dict:
         """Weights (target critic included) and optimiser states, for checkpoints."""
         return {"world_model": self.world_model.state_dict(), "actor": self.actor.state_dict(),
@@ -178,6 +200,7 @@ class DreamerAgent:
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One world-model step, then one actor and one critic step; returns the terms."""
+        batch = batch.to(self.device)
         model_out = self.model_loss(batch)  # also writes ("posterior", ...) into batch
         model_total = sum(v for k, v in model_out.items() if k.startswith("loss_"))
         self._step(model_total, self.model_optim, list(self.world_model.parameters()))

@@ -21,6 +21,7 @@ from torchrl.envs import TensorDictPrimer
 from simdist.modules import SimDistWorldModel
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.objectives import DynamicsFinetuneLoss, SimDistPretrainLoss
+from simdist.utils.device import module_device, move_to_device
 
 
 @dataclass
@@ -71,25 +72,29 @@ class SimDistPolicy(TensorDictModuleBase):
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         enc = self.world_model.encoder
         obs = td.get(self.obs_key)
+        # Inputs to the model's device, outputs back to the env's (a GPU model, CPU env).
+        home, device = obs.device, module_device(self.world_model)
+        obs = obs.to(device)
         batch = obs.shape[:-1]
         is_init = td.get("is_init", None)
         if is_init is None:
             raise KeyError("SimDistPolicy needs 'is_init': add torchrl.envs.InitTracker()")
-        is_init = is_init.reshape(*batch, 1, 1).bool()
+        is_init = is_init.to(device).reshape(*batch, 1, 1).bool()
         history = td.get(("simdist", "history"), None)
         if history is None:
             history = obs.unsqueeze(-2).expand(*batch, enc.history, enc.obs_dim)
+        history = history.to(device)
         shifted = torch.cat([history[..., 1:, :], obs.unsqueeze(-2)], -2)
         history = torch.where(is_init, obs.unsqueeze(-2).expand_as(shifted), shifted)
         latent = self.world_model.encode(history).reshape(-1, self.world_model.latent_dim)
         plan = self.planner(TensorDict({"latent": latent,
                                         "is_init": is_init.reshape(-1, 1)}, [latent.shape[0]]))
-        td.set("action", plan["action"].reshape(*batch, -1))
-        td.set(("next", "simdist", "history"), history)
-        td.set(("planner", "latent"), latent.reshape(*batch, -1))
+        td.set("action", plan["action"].reshape(*batch, -1).to(home))
+        td.set(("next", "simdist", "history"), history.to(home))
+        td.set(("planner", "latent"), latent.reshape(*batch, -1).to(home))
         for key in ("mean", "rewards", "value"):
             value = plan["planner", key]
-            td.set(("planner", key), value.reshape(*batch, *value.shape[1:]))
+            td.set(("planner", key), value.reshape(*batch, *value.shape[1:]).to(home))
         return td
 
 
@@ -118,6 +123,18 @@ class SimDistAgent:
                                                lr=config.finetune_lr)
         self.whole_optim = torch.optim.Adam(world_model.parameters(), lr=config.finetune_lr)
 
+    @property
+    def device(self) -> torch.device:
+        return module_device(self.world_model)
+
+    def to(self, device: str | torch.device) -> SimDistAgent:
+        """Moves the world model to ``device`` (its optimisers follow, see
+        :func:`~simdist.utils.device.move_to_device`); the updates move each batch there.
+        Returns ``self``."""
+        move_to_device([self.world_model],
+                       [self.pretrain_optim, self.finetune_optim, self.whole_optim], device)
+        return self
+
     def _apply(self, total, optim) -> None:
         optim.zero_grad(set_to_none=True)
         total.backward()
@@ -126,11 +143,13 @@ class SimDistAgent:
         optim.step()
 
     def pretrain_update(self, batch: TensorDictBase) -> dict[str, float]:
+        batch = batch.to(self.device)
         out = self.pretrain_loss(batch)
         self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.pretrain_optim)
         return {k: v.item() for k, v in out.items()}
 
     def finetune_update(self, batch: TensorDictBase) -> dict[str, float]:
+        batch = batch.to(self.device)
         out = self.finetune_loss(batch)
         self._apply(out["loss_consistency"], self.finetune_optim)
         return {k: v.item() for k, v in out.items()}
@@ -141,7 +160,7 @@ class SimDistAgent:
         Target data carries no value labels, so the ablation uses the consistency term
         alone but lets it move the encoder and heads' shared latent.
         """
-        out = self.finetune_loss.consistency_all_parts(batch)
+        out = self.finetune_loss.consistency_all_parts(batch.to(self.device))
         self._apply(out["loss_consistency"], self.whole_optim)
         return {k: v.item() for k, v in out.items()}
 
@@ -151,7 +170,7 @@ class SimDistAgent:
         planner = LatentMPPIPlanner.from_world_model(
             self.world_model, config, seed=seed, compile=compile,
             action_bounds=(action_low, action_high))
-        return SimDistPolicy(self.world_model, planner)
+        return SimDistPolicy(self.world_model, planner).to(self.device)
 
     def make_primer(self) -> TensorDictPrimer:
         enc = self.world_model.encoder

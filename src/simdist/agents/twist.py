@@ -15,6 +15,7 @@ from tensordict import TensorDictBase
 from simdist.agents.dreamer import DreamerAgent, DreamerPolicy
 from simdist.modules import DreamerWorldModel
 from simdist.objectives import ImaginedAlignmentLoss, TwistDistillationLoss
+from simdist.utils.device import module_device, move_to_device
 
 
 @dataclass
@@ -80,20 +81,31 @@ class TwistStudent:
                                    student_observation=pixels_key)
         self.optim = torch.optim.Adam(student.parameters(), lr=config.lr)
 
+    @property
+    def device(self) -> torch.device:
+        return module_device(self.student)
+
+    def to(self, device: str | torch.device) -> TwistStudent:
+        """Moves the student and the frozen teacher to ``device``; returns ``self``."""
+        self.teacher.to(device)
+        move_to_device([self.student], [self.optim], device)
+        return self
+
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One student step on ``L_distil (+ L_imagined)``; teacher parameters never move."""
-        out = self.distillation(batch)  # writes both posteriors into the batch
+        batch = batch.to(self.device)
+        out = dict(self.distillation(batch).items())  # writes both posteriors into the batch
         total = out["loss_distillation"]
-        terms = {k: v.item() for k, v in out.items()}
         if self.imagined is not None:
             imagined = self.imagined(batch)
             total = total + imagined["loss_imagined"]
-            terms.update({k: v.item() for k, v in imagined.items()})
+            out.update(imagined.items())
         self.optim.zero_grad(set_to_none=True)
         total.backward()
         torch.nn.utils.clip_grad_norm_(self.student.parameters(), self.config.grad_clip)
         self.optim.step()
-        return terms
+        # Read the figures after the step: on a GPU each .item() waits for the device.
+        return {k: v.item() for k, v in out.items()}
 
     def state_dict(self) -> dict:
         """The student's weights and optimiser (the teacher is saved with its own agent)."""

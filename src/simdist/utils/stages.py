@@ -26,7 +26,9 @@ class StageRunner:
     written atomically only after ``fn`` returns, so a stage killed midway reruns (and can
     resume from whatever it checkpointed in its ``stage_dir``). The recipe config is saved
     as ``<out>/config.json``; rerunning into the same directory with a different config
-    raises instead of mixing results.
+    raises instead of mixing results. ``runtime_keys`` name settings that change where or
+    how fast the work runs but not its results (e.g. ``device``): they are saved, not
+    compared, so a run started on one device can be resumed on another.
 
     Examples:
         >>> import tempfile
@@ -37,7 +39,7 @@ class StageRunner:
         {'n': 3}
     """
 
-    def __init__(self, out_dir: str | Path, config: Any):
+    def __init__(self, out_dir: str | Path, config: Any, runtime_keys: Sequence[str] = ()):
         self.out = Path(out_dir)
         (self.out / "stages").mkdir(parents=True, exist_ok=True)
         config = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
@@ -45,9 +47,9 @@ class StageRunner:
         saved = self.out / "config.json"
         if saved.exists():
             previous = json.loads(saved.read_text())
-            if previous != config:
-                changed = sorted(k for k in set(previous) | set(config)
-                                 if previous.get(k) != config.get(k))
+            changed = sorted(k for k in set(previous) | set(config)
+                             if previous.get(k) != config.get(k) and k not in runtime_keys)
+            if changed:
                 raise ValueError(f"{self.out} holds results of a different config (changed: "
                                  f"{changed}); use another --output-dir or the same settings")
         else:

@@ -56,6 +56,10 @@ def decode_plans(world_model, probe, latent, actions, qpos: slice, bodies: BodyP
     """
     import torch
 
+    from simdist.utils.device import module_device
+
+    device = module_device(world_model)  # the policy hands latents and plans back on CPU
+    latent, actions = latent.to(device), actions.to(device)
     with torch.no_grad():
         lead = actions.shape[:-2]
         z0 = latent.expand(*lead, latent.shape[-1])

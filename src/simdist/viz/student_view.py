@@ -7,6 +7,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from simdist.modules.rssm import RSSMState
+from simdist.utils.device import module_device
 
 
 @torch.no_grad()
@@ -40,8 +41,10 @@ def record_student_episode(env, teacher, twist, path: str, steps: int,
     teacher_wm = teacher.world_model
     rssm = teacher_wm.rssm
     policy = twist.policy(explore=False)
-    t_state = RSSMState(torch.zeros(1, rssm.deter_dim), torch.zeros(1, rssm.stoch_dim))
-    prev_action = torch.zeros(1, rssm.action_dim)
+    device = module_device(teacher_wm)  # the policy hands back the env's (CPU) tensors
+    t_state = RSSMState(torch.zeros(1, rssm.deter_dim, device=device),
+                        torch.zeros(1, rssm.stoch_dim, device=device))
+    prev_action = torch.zeros(1, rssm.action_dim, device=device)
     td = env.reset()
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for step in range(steps):
@@ -49,13 +52,13 @@ def record_student_episode(env, teacher, twist, path: str, steps: int,
             stream.set_time("step", sequence=step)
             stream.log("student/view", rr.Image(td["pixels"].numpy()))
             # The teacher filters the privileged state s_t of the same step alongside.
-            keep = (~td["is_init"].reshape(1, 1).bool()).float()
+            keep = (~td["is_init"].reshape(1, 1).bool()).float().to(device)
             t_state = rssm.filter_step(t_state, prev_action, teacher_wm.encoder(
-                td["state"].reshape(1, -1)), keep)
-            prev_action = td["action"].reshape(1, -1)
-            belief = td["next", "agent", "belief"].reshape(1, -1)
-            stoch = td["next", "agent", "stoch"].reshape(1, -1)
-            decoded = teacher_wm.decode(torch.cat([belief, stoch], -1))[0]
+                td["state"].reshape(1, -1).to(device)), keep)
+            prev_action = td["action"].reshape(1, -1).to(device)
+            belief = td["next", "agent", "belief"].reshape(1, -1).to(device)
+            stoch = td["next", "agent", "stoch"].reshape(1, -1).to(device)
+            decoded = teacher_wm.decode(torch.cat([belief, stoch], -1))[0].cpu()
             state = td["state"]
             for label, index in fields:
                 stream.log(f"state/true/{label}", rr.Scalars(float(state[index])))
