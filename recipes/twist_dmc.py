@@ -22,7 +22,7 @@ Dreamer is a chain of its own. ``--jobs 2`` (the default on two or more cores) r
 chains side by side in two processes, one torch thread each.
 
 Usage:
-    python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~27 min
+    python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~25 min
     python recipes/twist_dmc.py --preset tiny      # seconds, used by the tests
     python recipes/twist_dmc.py --preset paper --device cuda   # six tasks x 3 seeds, 500K steps
 """
@@ -89,7 +89,7 @@ class Config:
     actor_lr: float = 3e-4
     critic_lr: float = 3e-4
     # evaluation on held-out scenes
-    eval_episodes: int = 4
+    eval_episodes: int = 10  # measured: with 4, one student scored 209 and 250 on two draws
     eval_steps: int = 500
     record: bool = True
     output_dir: str = "outputs/twist_dmc"
