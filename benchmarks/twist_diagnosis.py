@@ -36,7 +36,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
 import twist_dmc as recipe  # noqa: E402  (the recipe's config and stage helpers)
-from simdist.agents import DreamerPolicy, TwistConfig, TwistStudent  # noqa: E402
+from simdist.agents import DreamerPolicy, TwistStudent  # noqa: E402
 from simdist.modules import DreamerWorldModel  # noqa: E402
 from simdist.pipelines import (EpisodeReplay, evaluate_returns, load_episodes,  # noqa: E402
                                mean_metrics, train_resumable)
@@ -56,9 +56,8 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None) -> Twi
         state_dim, action_dim = recipe.state_dim(task)
         student = DreamerWorldModel.teacher(state_dim, action_dim, cfg.model_size)
         student.decoder = student.reward_head = None  # a student learns neither
-        config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
-                             max_imagination_starts=cfg.imagination_starts, **overrides)
-        return TwistStudent(teacher, student, config, pixels_key=("next", "state"))
+        return TwistStudent(teacher, student, recipe.twist_config(cfg, overrides),
+                            pixels_key=("next", "state"))
     twist = recipe.new_student(cfg, task, teacher, overrides)
     if variant == "init":
         own = twist.student.rssm.state_dict()

@@ -45,7 +45,7 @@ from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, train_resumable)
 from simdist.pipelines.report import plot_results, print_table
-from simdist.utils import StageRunner, load_checkpoint, resolve_device, save_atomic
+from simdist.utils import StageRunner, device_argument, load_checkpoint, save_atomic
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -334,18 +334,14 @@ def main(argv=None):
     parser.add_argument("--expert", help=f"expert checkpoint (default {DEFAULT_EXPERT})")
     parser.add_argument("--retrain-expert", action="store_true")
     parser.add_argument("--output-dir")
-    parser.add_argument("--device", default="cpu",
+    parser.add_argument("--device", default="cpu", type=device_argument,
                         help="where the world model trains and plans: cpu, cuda, cuda:N, auto")
     args = parser.parse_args(argv)
     cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
     overrides = {k: v for k, v in (("target", args.target), ("episodes", args.episodes),
                                    ("expert", args.expert), ("output_dir", args.output_dir))
                  if v is not None}
-    try:
-        device = str(resolve_device(args.device))
-    except ValueError as err:
-        parser.error(str(err))
-    cfg = dataclasses.replace(cfg, retrain_expert=args.retrain_expert, device=device,
+    cfg = dataclasses.replace(cfg, retrain_expert=args.retrain_expert, device=args.device,
                               **overrides)
     unknown = [t for t in {cfg.target, *cfg.expert_targets} if t not in TARGETS]
     if unknown:

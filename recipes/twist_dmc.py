@@ -48,7 +48,7 @@ from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer
                                evaluate_returns, load_episodes, mean_metrics, train_dreamer_online,
                                train_resumable)
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
-from simdist.utils import StageRunner, load_checkpoint, resolve_device, run_jobs
+from simdist.utils import StageRunner, device_argument, load_checkpoint, run_jobs
 from simdist.viz.student_view import record_student_episode
 
 TWIST = "TWIST (student)"
@@ -166,11 +166,16 @@ def evaluate(cfg: Config, task: str, seed: int, policy, primer, pixels: bool) ->
                             cfg.eval_steps, pixels, visual)
 
 
-def new_student(cfg: Config, task: str, teacher: DreamerAgent, overrides: dict) -> TwistStudent:
-    student = DreamerWorldModel.student(teacher.actor.action_dim, cfg.model_size)
+def twist_config(cfg: Config, overrides: dict) -> TwistConfig:
+    """The recipe's student settings, with an ablation's ``overrides`` on top."""
     config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
                          max_imagination_starts=cfg.imagination_starts)
-    return TwistStudent(teacher, student, dataclasses.replace(config, **overrides)).to(cfg.device)
+    return dataclasses.replace(config, **overrides)
+
+
+def new_student(cfg: Config, task: str, teacher: DreamerAgent, overrides: dict) -> TwistStudent:
+    student = DreamerWorldModel.student(teacher.actor.action_dim, cfg.model_size)
+    return TwistStudent(teacher, student, twist_config(cfg, overrides)).to(cfg.device)
 
 
 def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
@@ -263,7 +268,7 @@ def main(argv=None):
     parser.add_argument("--seeds", nargs="+", type=int)
     parser.add_argument("--eval-episodes", type=int)
     parser.add_argument("--output-dir")
-    parser.add_argument("--device", default="cpu",
+    parser.add_argument("--device", default="cpu", type=device_argument,
                         help="where networks train and act: cpu, cuda, cuda:N or auto")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="stages run side by side in this many processes (teacher chain "
@@ -273,11 +278,7 @@ def main(argv=None):
     overrides = {k: v for k, v in (("tasks", args.tasks), ("seeds", args.seeds),
                                    ("eval_episodes", args.eval_episodes),
                                    ("output_dir", args.output_dir)) if v is not None}
-    try:
-        device = str(resolve_device(args.device))
-    except ValueError as err:
-        parser.error(str(err))
-    cfg = dataclasses.replace(cfg, device=device, **overrides)
+    cfg = dataclasses.replace(cfg, device=args.device, **overrides)
     unknown = [t for t in cfg.tasks if t not in TASKS or TASKS[t].is_robot]
     if unknown:
         parser.error(f"unknown control-suite tasks {unknown}; valid: "

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
+import itertools
+
 import torch
 
 
@@ -14,9 +17,9 @@ def module_device(module: torch.nn.Module) -> torch.device:
         >>> module_device(torch.nn.Linear(2, 3, device="meta"))
         device(type='meta')
     """
-    for tensor in (*module.parameters(), *module.buffers()):
-        return tensor.device
-    return torch.device("cpu")
+    # Called per policy step and per update: look at the first tensor only.
+    first = next(itertools.chain(module.parameters(), module.buffers()), None)
+    return torch.device("cpu") if first is None else first.device
 
 
 def resolve_device(name: str | torch.device) -> torch.device:
@@ -45,6 +48,20 @@ def resolve_device(name: str | torch.device) -> torch.device:
             raise ValueError(f"device {name!r} asked for, but this machine has {count} CUDA "
                              f"device(s) (torch {torch.__version__}); use --device cpu")
     return device
+
+
+def device_argument(name: str) -> str:
+    """``argparse`` ``type=`` for a ``--device`` option: the resolved name, or a usage
+    error carrying :func:`resolve_device`'s message (exit status 2, before any work).
+
+    Examples:
+        >>> device_argument("cpu")
+        'cpu'
+    """
+    try:
+        return str(resolve_device(name))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
 
 
 def move_to_device(modules, optimisers, device: str | torch.device) -> None:
