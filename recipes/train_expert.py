@@ -1,11 +1,18 @@
 """Train the state-based SAC expert used by the SimDist recipe (and resume if interrupted).
 
-The committed checkpoint `checkpoints/quadruped_expert/expert.pt` came from the default
-command below; rerunning it resumes from `latest.pt` in the output directory.
+Writes to `outputs/quadruped_expert` unless `--out` says otherwise, so a quick run never
+overwrites the committed expert; rerunning a command resumes from `latest.pt` there.
 
-Usage:
-    python recipes/train_expert.py                                  # 400k frames, ~hours on 2 cores
-    python recipes/train_expert.py --frames 20000 --out /tmp/expert # a quick look
+The committed experts came from two commands (README, "Experts and perturbed data"):
+
+    # 1. flat ground, from scratch: 400k frames, ~2.2 h on 2 cores
+    python recipes/train_expert.py --task quadruped-flat --out checkpoints/quadruped_expert_flat
+    # 2. mixed terrain (slopes of -15..15 degrees), continuing the flat expert
+    python recipes/train_expert.py --task quadruped-terrain --frames 120000 \
+        --init-from checkpoints/quadruped_expert_flat/expert.pt --alpha-init 0.02 \
+        --init-random-frames 5000 --out checkpoints/quadruped_expert
+
+    python recipes/train_expert.py --frames 20000        # a quick look
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ import json
 
 import simdist  # noqa: F401
 from simdist.experts import Expert, SACExpertConfig, evaluate, train_sac_expert
-from simdist.envs import TARGETS
+from simdist.envs import TARGETS, get_task
 from simdist.utils import load_checkpoint
 
 
@@ -40,21 +47,36 @@ def plot_training_curve(curve: list[dict], path) -> None:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="checkpoints/quadruped_expert")
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--out", default="outputs/quadruped_expert",
+                        help="output directory (the committed expert lives in "
+                             "checkpoints/quadruped_expert: name it to replace it)")
     parser.add_argument("--frames", type=int, default=SACExpertConfig.total_frames)
-    parser.add_argument("--task", default=SACExpertConfig.task)
+    parser.add_argument("--task", default="quadruped-terrain")
+    parser.add_argument("--init-from", default=None,
+                        help="expert.pt whose actor and critic start the run")
+    parser.add_argument("--alpha-init", type=float, default=SACExpertConfig.alpha_init)
+    parser.add_argument("--init-random-frames", type=int,
+                        default=SACExpertConfig.init_random_frames,
+                        help="frames before the first update (random actions unless "
+                             "--init-from)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
-    cfg = SACExpertConfig(task=args.task, total_frames=args.frames, seed=args.seed)
+    get_task(args.task)  # an unknown task fails before any work
+    cfg = SACExpertConfig(task=args.task, total_frames=args.frames, seed=args.seed,
+                          init_from=args.init_from, alpha_init=args.alpha_init,
+                          init_random_frames=args.init_random_frames)
     path = train_sac_expert(cfg, args.out, progress=not args.no_progress)
     expert = Expert.load(path)
     plot_training_curve(load_checkpoint(path)["curve"], path.parent / "training_curve.png")
     report = {}
     for target in ("sim", "slippery_slope", "foam", "payload", "weak_motors", "laggy"):
-        report[target] = evaluate(expert.actor, dataclasses.replace(cfg, dynamics_randomisation=False),
-                                  episodes=6, seed=123, target=None if target == "sim" else TARGETS[target])
+        # Transfer is measured on the flat-ground task the targets are defined on.
+        flat = dataclasses.replace(cfg, task="quadruped-flat", dynamics_randomisation=False)
+        report[target] = evaluate(expert.actor, flat, episodes=6, seed=123,
+                                  target=None if target == "sim" else TARGETS[target])
         print(f"{target:15s} return {report[target]['return']:7.1f}   "
               f"forward progress {report[target]['forward_progress']:5.2f} m")
     (path.parent / "transfer.json").write_text(json.dumps(report, indent=2))

@@ -63,6 +63,9 @@ class QuadrupedLocomotion(base.Task):
     Args:
         speeds: commanded forward speeds (m/s), one drawn per episode.
         slope_deg: floor incline; forward is up the slope.
+        slope_range_deg: ``(low, high)``: draw the incline per episode instead,
+            uniformly in the range (negative is downhill); ``None`` keeps ``slope_deg``.
+            The floor is a plane, so its tilt is edited in the compiled model in place.
         random: seed or ``numpy.random.RandomState``.
 
     Examples:
@@ -74,18 +77,31 @@ class QuadrupedLocomotion(base.Task):
         (0.5, 89, 0.0)
     """
 
-    def __init__(self, speeds=(0.25, 0.5, 0.75), slope_deg: float = 0.0, random=None):
-        if not speeds or min(speeds) <= 0:
-            raise ValueError(f"speeds must be a non-empty list of positive m/s, got {speeds}")
-        self.speeds = tuple(float(s) for s in speeds)
-        self.slope_deg = float(slope_deg)
-        theta = np.deg2rad(slope_deg)
-        self.forward = np.array([np.cos(theta), 0.0, np.sin(theta)])
-        self.ground_normal = np.array([-np.sin(theta), 0.0, np.cos(theta)])
+    def __init__(self, speeds=(0.25, 0.5, 0.75), slope_deg: float = 0.0,
+                 slope_range_deg: tuple | None = None, random=None):
+        speeds = tuple(float(s) for s in speeds)
+        if not speeds or not all(np.isfinite(s) and s > 0 for s in speeds):
+            raise ValueError(f"speeds must be a non-empty list of positive, finite m/s, "
+                             f"got {speeds}")
+        self.speeds = speeds
+        if slope_range_deg is not None:
+            low, high = (float(v) for v in slope_range_deg)
+            if not (np.isfinite(low) and np.isfinite(high) and -30 <= low <= high <= 30):
+                raise ValueError(f"slope_range_deg must be (low, high) within [-30, 30], "
+                                 f"got {slope_range_deg}")
+            slope_range_deg = (low, high)
+        self.slope_range_deg = slope_range_deg
+        self._set_slope(float(slope_deg))
         self.command = self.speeds[0]
         self._start = np.zeros(3)
         self._idx = None
         super().__init__(random=random)
+
+    def _set_slope(self, slope_deg: float) -> None:
+        self.slope_deg = slope_deg
+        theta = np.deg2rad(slope_deg)
+        self.forward = np.array([np.cos(theta), 0.0, np.sin(theta)])
+        self.ground_normal = np.array([-np.sin(theta), 0.0, np.cos(theta)])
 
     # -- indices into MjData, computed once per model -------------------------------
     def _indices(self, physics):
@@ -99,6 +115,7 @@ class QuadrupedLocomotion(base.Task):
         rf = np.flatnonzero(m.sensor_type == mujoco.mjtSensor.mjSENS_RANGEFINDER)
         return dict(
             torso=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "torso"),
+            floor=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor"),
             qpos=m.jnt_qposadr[hinges], qvel=m.jnt_dofadr[hinges],
             gyro=sensor("imu_gyro"), accel=sensor("imu_accel"), vel=sensor("velocimeter"),
             toe_force=np.concatenate([sensor(s) for s in _TOE_FORCE_SENSORS]),
@@ -109,6 +126,10 @@ class QuadrupedLocomotion(base.Task):
         if self._idx is None:
             self._idx = self._indices(physics)
         self.command = self.speeds[self.random.randint(len(self.speeds))]
+        if self.slope_range_deg is not None:
+            self._set_slope(self.random.uniform(*self.slope_range_deg))
+            half = -np.deg2rad(self.slope_deg) / 2  # as make_model tilts the floor
+            physics.model.ptr.geom_quat[self._idx["floor"]] = [np.cos(half), 0, np.sin(half), 0]
         yaw = self.random.uniform(-0.1, 0.1)
         # Stand on the incline: pitch the body with the slope, then a small yaw.
         pitch = np.zeros(4)

@@ -67,13 +67,18 @@ def _suite_builder(domain: str, task: str):
     return build
 
 
-def _quadruped_builder(default_slope: float):
+def _quadruped_builder(default_slope: float, default_range: tuple | None = None):
     def build(target: TargetDomain, seed, speeds=(0.25, 0.5, 0.75), slope_deg=default_slope,
-              texture_size: int = 64):
-        slope = target.slope_deg if target.slope_deg else slope_deg
+              slope_range_deg=default_range, texture_size: int = 64):
+        # A target's slope is its fixed geometry: it replaces any per-episode range.
+        if target.slope_deg:
+            slope, slope_range_deg = target.slope_deg, None
+        else:
+            slope = slope_deg
         xml, assets = quadruped.make_model(slope, texture_size=texture_size)
         physics = quadruped.dmc_quadruped.Physics.from_xml_string(xml, assets)
-        task = quadruped.QuadrupedLocomotion(speeds=speeds, slope_deg=slope, random=seed)
+        task = quadruped.QuadrupedLocomotion(speeds=speeds, slope_deg=slope,
+                                             slope_range_deg=slope_range_deg, random=seed)
         n_sub_steps = int(round(quadruped.CONTROL_TIMESTEP / physics.timestep()))
         return physics, task, n_sub_steps
     return build
@@ -93,6 +98,12 @@ TASKS["quadruped-flat"] = TaskSpec(
 TASKS["quadruped-slope"] = TaskSpec(
     "quadruped-slope", _quadruped_builder(8.0), action_repeat=1, max_episode_steps=500,
     camera_id=2, is_robot=True, supports_slope=True)
+# Mixed terrain for training experts and datasets: each episode's incline is drawn
+# uniformly in [-15, 15] degrees (forward is downhill below 0), so slopes up to the named
+# targets' geometry are in distribution while their dynamics shifts stay outside it.
+TASKS["quadruped-terrain"] = TaskSpec(
+    "quadruped-terrain", _quadruped_builder(0.0, (-15.0, 15.0)), action_repeat=1,
+    max_episode_steps=500, camera_id=2, is_robot=True, supports_slope=True)
 
 
 def get_task(name: str) -> TaskSpec:

@@ -34,6 +34,10 @@ from simdist.utils.checkpoint import load_checkpoint, save_atomic
 class SACExpertConfig:
     """Expert training configuration (flat, typed; saved beside every checkpoint).
 
+    ``init_from`` names an ``expert.pt`` whose actor and critic start the run (the
+    committed terrain expert continues the flat-ground expert this way); pair it with a
+    small ``alpha_init``, or SAC's entropy bonus first undoes what the actor knows.
+
     Examples:
         >>> cfg = SACExpertConfig(num_envs=4, frames_per_batch=32)
         >>> dataclasses.asdict(cfg)["task"], cfg.frames_per_batch // cfg.num_envs
@@ -62,6 +66,8 @@ class SACExpertConfig:
     checkpoint_every: int = 20_000
     snapshot_every: int = 50_000
     eval_episodes: int = 4
+    alpha_init: float = 1.0
+    init_from: str | None = None
     seed: int = 0
 
     def __post_init__(self):
@@ -70,6 +76,8 @@ class SACExpertConfig:
                 raise ValueError(f"{name} must be >= 1")
         if self.frames_per_batch % self.num_envs:
             raise ValueError("frames_per_batch must be a multiple of num_envs")
+        if not self.alpha_init > 0:
+            raise ValueError(f"alpha_init must be > 0, got {self.alpha_init}")
 
 
 def make_training_env(cfg: SACExpertConfig, seed: int, num_envs: int | None = None, target=None):
@@ -180,7 +188,14 @@ def train_sac_expert(cfg: SACExpertConfig, out_dir: str | Path, progress: bool =
     with torch.no_grad():  # materialise lazy shapes
         td = env.reset()
         critic(actor(td))
-    loss = SACLoss(actor, critic, num_qvalue_nets=2, loss_function="l2")
+    if cfg.init_from is not None:
+        start = Expert.load(cfg.init_from)
+        if start._low.shape != action_spec.space.low.shape:
+            raise ValueError(f"init_from={cfg.init_from!r} was trained for another action space")
+        actor.load_state_dict(start.actor.state_dict())
+        critic.load_state_dict(start.critic.state_dict())
+    loss = SACLoss(actor, critic, num_qvalue_nets=2, loss_function="l2",
+                   alpha_init=cfg.alpha_init)
     loss.make_value_estimator(gamma=cfg.gamma)
     updater = SoftUpdate(loss, tau=cfg.tau)
     optim = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
@@ -196,10 +211,12 @@ def train_sac_expert(cfg: SACExpertConfig, out_dir: str | Path, progress: bool =
     remaining = cfg.total_frames - state["frames"]
     if remaining <= 0:
         return _export(out_dir, cfg, loss, state, obs_dim, action_spec)
+    # A warm start collects its first ``init_random_frames`` with its own policy: random
+    # actions would only fill the buffer with falls the policy no longer makes.
+    random_frames = 0 if cfg.init_from else max(0, cfg.init_random_frames - state["frames"])
     collector = Collector(env, actor, frames_per_batch=cfg.frames_per_batch,
-                          total_frames=remaining,
-                          init_random_frames=max(0, cfg.init_random_frames - state["frames"])
-                          or None, auto_register_policy_transforms=False)
+                          total_frames=remaining, init_random_frames=random_frames or None,
+                          auto_register_policy_transforms=False)
     bar = tqdm(total=cfg.total_frames, initial=state["frames"], disable=not progress,
                desc="SAC expert", unit="frames")
     start, last_ckpt = time.perf_counter(), state["frames"]
