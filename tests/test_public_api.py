@@ -24,6 +24,8 @@ def test_public_classes_are_found():
     names = [name for name, _ in _public_classes()]
     assert len(names) >= 40
     assert "simdist.agents.TwistStudent" in names
+    # The README's concept map imports these from simdist.modules.
+    assert {"simdist.modules.LatentMPPIPlanner", "simdist.modules.PlannerConfig"} <= set(names)
 
 
 def test_every_public_class_has_a_docstring_with_an_example():

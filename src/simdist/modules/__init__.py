@@ -2,10 +2,12 @@
 
 from simdist.modules.encoders import HistoryEncoder, PixelEncoder, StateEncoder, simnorm
 from simdist.modules.heads import Actor, PixelDecoder, PolicyPrior, ScalarHead, StateDecoder
+from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.modules.rssm import RSSM, RSSMState
 from simdist.modules.simdist_model import SIMDIST_SIZES, MLPDynamics, SimDistWorldModel
 from simdist.modules.world_model import RSSM_SIZES, DreamerWorldModel
 
 __all__ = ["HistoryEncoder", "PixelEncoder", "StateEncoder", "simnorm", "Actor", "PixelDecoder",
            "PolicyPrior", "ScalarHead", "StateDecoder", "RSSM", "RSSMState", "SIMDIST_SIZES",
-           "MLPDynamics", "SimDistWorldModel", "RSSM_SIZES", "DreamerWorldModel"]
+           "MLPDynamics", "SimDistWorldModel", "RSSM_SIZES", "DreamerWorldModel",
+           "LatentMPPIPlanner", "PlannerConfig"]
