@@ -37,9 +37,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
 import twist_dmc as recipe  # noqa: E402  (the recipe's config and stage helpers)
 from simdist.agents import DreamerPolicy, TwistStudent  # noqa: E402
-from simdist.modules import DreamerWorldModel  # noqa: E402
-from simdist.pipelines import (EpisodeReplay, evaluate_returns, load_episodes,  # noqa: E402
-                               mean_metrics, train_resumable)
+from simdist.envs import VisualRandomisation  # noqa: E402
+from simdist.modules import DreamerWorldModel, PixelEncoder, RandomShift  # noqa: E402
+from simdist.pipelines import (EpisodeReplay, control_env, evaluate_returns,  # noqa: E402
+                               load_episodes, mean_metrics, train_resumable)
 
 
 def teacher_stage(outputs: Path, task: str, seed: int) -> dict:
@@ -56,6 +57,7 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None) -> Twi
         state_dim, action_dim = recipe.state_dim(task)
         student = DreamerWorldModel.teacher(state_dim, action_dim, cfg.model_size)
         student.decoder = student.reward_head = None  # a student learns neither
+        overrides["shift_pad"] = 0  # a state vector is not an image
         return TwistStudent(teacher, student, recipe.twist_config(cfg, overrides),
                             pixels_key=("next", "state"))
     twist = recipe.new_student(cfg, task, teacher, overrides)
@@ -97,36 +99,103 @@ def distil(args, cfg, teacher_result: dict) -> None:
               flush=True)
 
 
+def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, seed: int,
+                  renders: int = 1) -> torch.Tensor:
+    """Images ``[renders, N, 64, 64, 3]`` of recorded cartpole states, each under a fresh draw.
+
+    Sets the physics to every stored state (cart position and the pole's angle from its
+    cosine and sine) and renders it ``renders`` times, each render with a new draw of
+    ``visual`` (textures, colours, light, and the camera if ``visual.camera``).
+    """
+    if not task.startswith("cartpole"):
+        raise ValueError(f"render_states knows cartpole's state layout only, got {task}")
+    env = control_env(task, seed, pixels=True, visual=visual)
+    sim = env.base_env.sims[0]
+    out = torch.zeros(renders, len(states), 64, 64, 3, dtype=torch.uint8)
+    qpos = torch.stack([states[:, 0], torch.atan2(states[:, 2], states[:, 1])], -1).numpy()
+    for i, q in enumerate(qpos):
+        sim.physics.data.qpos[:2] = q
+        sim.physics.forward()
+        for r in range(renders):
+            sim._vis_editor.randomise(sim._vis_rng)
+            out[r, i] = torch.from_numpy(sim.render())
+    env.close()
+    return out
+
+
+def probe_encoder(args, cfg) -> torch.nn.Module:
+    size = DreamerWorldModel.student(1, cfg.model_size).encoder
+    depth = args.depth or size.net[0].out_channels
+    return PixelEncoder(depth, norm=args.norm, input_norm=args.input_norm)
+
+
 def probe(args, cfg, teacher_result: dict) -> None:
+    """Supervised probe: can the student's CNN read the state from one randomised image?
+
+    Test sets: 1/6 of D's images (training randomisation, images the encoder never saw)
+    and, with ``--heldout-renders``, the same test states re-rendered under the recipe's
+    evaluation randomisation (held-out textures, camera jitter): the student's test.
+    """
     torch.manual_seed(args.seed)
     episodes = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
     pixels = torch.cat([e["next", "pixels"].flatten(0, -4) for e in episodes])
     states = torch.cat([e["next", "state"].flatten(0, -2) for e in episodes])
     order = torch.randperm(len(pixels))
     test, train = order[: len(order) // 6], order[len(order) // 6:]
-    encoder = DreamerWorldModel.student(1, cfg.model_size).encoder
-    head = torch.nn.Linear(encoder(pixels[:2]).shape[-1], states.shape[-1])
-    optim = torch.optim.Adam([*encoder.parameters(), *head.parameters()], lr=args.lr or 3e-4)
+    cache = args.work / "probe_renders"
+    cache.mkdir(parents=True, exist_ok=True)
+    heldout = None
+    if args.heldout_renders:
+        path = cache / f"heldout_s{args.seed}.pt"
+        if not path.exists():
+            torch.save(render_states(args.task, states[test],
+                                     VisualRandomisation.heldout_evaluation(),
+                                     args.seed + 20_000)[0], path)
+        heldout = torch.load(path)
+    images = pixels[train][None]  # [1 + extra renders, N_train, ...]
+    if args.extra_renders:
+        path = cache / f"extra{args.extra_renders}_s{args.seed}.pt"
+        if not path.exists():
+            torch.save(render_states(args.task, states[train], VisualRandomisation.training(),
+                                     args.seed + 30_000, args.extra_renders), path)
+        images = torch.cat([images, torch.load(path)])
+    encoder = probe_encoder(args, cfg)
+    shift = RandomShift(args.shift, args.shift_per) if args.shift else None
+    head = torch.nn.Linear(encoder.embed_dim, states.shape[-1])
+    params = [*encoder.parameters(), *head.parameters()]
+    optim = torch.optim.Adam(params, lr=args.lr or 3e-4)
     mean, std = states[train].mean(0), states[train].std(0)
 
-    def r2(index) -> list[float]:
+    def r2(x, y) -> list[float]:
+        encoder.eval()
         with torch.no_grad():
-            target = (states[index] - mean) / std
-            error = (head(encoder(pixels[index])) - target).pow(2).mean(0)
-            return [round(x, 2) for x in (1 - error / target.var(0)).tolist()]
+            target = (y - mean) / std
+            error = torch.cat([head(encoder(x[i:i + 500])) for i in range(0, len(x), 500)])
+            error = (error - target).pow(2).mean(0)
+        encoder.train()
+        return [round(v, 2) for v in (1 - error / target.var(0)).tolist()]
 
     start = time.perf_counter()
+    n = len(train)
     for step in range(1, args.updates[-1] + 1):
-        batch = train[torch.randint(len(train), (args.batch,))]
-        loss = (head(encoder(pixels[batch])) - (states[batch] - mean) / std).pow(2).mean()
+        index = torch.randint(n, (args.batch,))
+        render = torch.randint(len(images), (args.batch,))
+        batch = images[render, index]
+        if shift is not None:  # a probe batch is one image per state: per frame
+            batch = shift(batch[:, None])[:, 0] if args.shift_per == "sequence" else shift(batch)
+        loss = (head(encoder(batch)) - (states[train[index]] - mean) / std).pow(2).mean()
         optim.zero_grad()
         loss.backward()
         optim.step()
         if step in args.updates or step % 300 == 0:
-            print(json.dumps({"variant": "probe", "updates": step, "images_train": len(train),
-                              "images_test": len(test), "r2_test": r2(test),
-                              "r2_train": r2(train[: len(test)]),
-                              "seconds": round(time.perf_counter() - start, 1)}), flush=True)
+            record = {"variant": "probe", "probe": args.name, "updates": step,
+                      "images_train": n * len(images), "images_test": len(test),
+                      "r2_test": r2(pixels[test], states[test]),
+                      "r2_train": r2(images[0, :len(test)], states[train[:len(test)]])}
+            if heldout is not None:
+                record["r2_heldout"] = r2(heldout, states[test])
+            record["seconds"] = round(time.perf_counter() - start, 1)
+            print(json.dumps(record), flush=True)
 
 
 def main():
@@ -141,6 +210,17 @@ def main():
     parser.add_argument("--lr", type=float, default=None, help="default: the recipe's")
     parser.add_argument("--episodes", type=int, default=6, help="held-out evaluation episodes")
     parser.add_argument("--batch", type=int, default=400, help="probe: images per update")
+    parser.add_argument("--depth", type=int, default=None,
+                        help="probe: CNN depth (default: the preset's)")
+    parser.add_argument("--norm", default=None, choices=["layer"], help="probe: encoder norm")
+    parser.add_argument("--input-norm", default="fixed", choices=["fixed", "image"])
+    parser.add_argument("--shift", type=int, default=0, help="probe: random-shift pad")
+    parser.add_argument("--shift-per", default="frame", choices=["frame", "sequence"])
+    parser.add_argument("--extra-renders", type=int, default=0,
+                        help="probe: extra training renders of D's states")
+    parser.add_argument("--heldout-renders", action="store_true",
+                        help="probe: also test on the test states under held-out scenes")
+    parser.add_argument("--name", default="base", help="probe: a label for the log")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()

@@ -85,6 +85,12 @@ class Config:
     horizon: int = 15
     action_noise_std: float = 0.3
     imagination_starts: int = 256  # per update, for the actor-critic and Eq. 4
+    # the student's pixel encoder and its input augmentation (TwistConfig.shift_*)
+    student_depth: int | None = None  # None: the model size's CNN depth
+    student_norm: str | None = None  # None or "layer" (PixelEncoder.norm)
+    student_input_norm: str = "fixed"  # or "image" (PixelEncoder.input_norm)
+    student_shift_pad: int = 0  # DrQ random shift in pixels, 0: none
+    student_shift_per: str = "sequence"  # one shift per slice, or "frame"
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4
     critic_lr: float = 3e-4
@@ -169,12 +175,15 @@ def evaluate(cfg: Config, task: str, seed: int, policy, primer, pixels: bool) ->
 def twist_config(cfg: Config, overrides: dict) -> TwistConfig:
     """The recipe's student settings, with an ablation's ``overrides`` on top."""
     config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
-                         max_imagination_starts=cfg.imagination_starts)
+                         max_imagination_starts=cfg.imagination_starts,
+                         shift_pad=cfg.student_shift_pad, shift_per=cfg.student_shift_per)
     return dataclasses.replace(config, **overrides)
 
 
 def new_student(cfg: Config, task: str, teacher: DreamerAgent, overrides: dict) -> TwistStudent:
-    student = DreamerWorldModel.student(teacher.actor.action_dim, cfg.model_size)
+    student = DreamerWorldModel.student(teacher.actor.action_dim, cfg.model_size,
+                                        depth=cfg.student_depth, norm=cfg.student_norm,
+                                        input_norm=cfg.student_input_norm)
     return TwistStudent(teacher, student, twist_config(cfg, overrides)).to(cfg.device)
 
 

@@ -3,6 +3,7 @@
 import copy
 
 import torch
+from tensordict import TensorDict
 from torchrl.envs import InitTracker, TransformedEnv
 
 from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStudent
@@ -57,3 +58,26 @@ def test_deployed_policy_acts_from_pixels_with_the_teachers_actor():
     expected = teacher.actor(torch.cat([td["next", "agent", "belief"],
                                         td["next", "agent", "stoch"]], -1))
     torch.testing.assert_close(td["action"], expected)
+
+
+def test_random_shift_config_augments_training_images_only():
+    torch.manual_seed(0)
+    teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+    student = DreamerWorldModel.student(action_dim=1, size="tiny", depth=6, norm="layer",
+                                        input_norm="image")
+    assert student.encoder.net[0].out_channels == 6
+    twist = TwistStudent(teacher, student, TwistConfig(horizon=2, shift_pad=4,
+                                                       shift_per="sequence"))
+    assert twist.augment.pad == 4 and twist.augment.per == "sequence"
+    pixels = torch.randint(0, 255, (2, 4, 64, 64, 3), dtype=torch.uint8)
+    batch = TensorDict({"action": torch.zeros(2, 4, 1),
+                        "is_init": torch.zeros(2, 4, 1, dtype=torch.bool),
+                        "next": {"state": torch.zeros(2, 4, 5), "pixels": pixels.clone()}},
+                       [2, 4])
+    seen = []
+    twist.student.encoder.register_forward_hook(lambda m, inp, out: seen.append(inp[0]))
+    out = twist.update(batch)
+    assert torch.equal(batch["next", "pixels"], pixels)  # the replay's images are untouched
+    assert seen[0].shape == pixels.shape and not torch.equal(seen[0], pixels)
+    assert torch.isfinite(torch.tensor(out["loss_distillation"]))
+    assert TwistStudent(teacher, student, TwistConfig()).augment is None

@@ -56,3 +56,27 @@ def test_history_encoder_normalisation_is_fixed_and_standardises_inputs():
     assert not any(p is enc.obs_mean or p is enc.obs_std for p in enc.parameters())
     with pytest.raises(ValueError, match="non-finite"):
         enc.set_normalisation(torch.full((3,), float("nan")), std)
+
+
+def test_pixel_encoder_options_layer_norm_and_per_image_input_norm():
+    torch.manual_seed(0)
+    x = torch.randint(0, 180, (3, 64, 64, 3), dtype=torch.uint8)
+    enc = PixelEncoder(depth=4, norm="layer", input_norm="image")
+    assert sum(isinstance(m, torch.nn.LayerNorm) for m in enc.modules()) == 4
+    assert all(c.bias is None for c in enc.modules() if isinstance(c, torch.nn.Conv2d))
+    # per-image standardisation: each channel of each image enters the CNN with zero mean
+    # and unit std, so a global brightness/contrast change of an image is (nearly) invisible
+    seen = []
+    enc.net[0].register_forward_hook(lambda m, inp, out: seen.append(inp[0]))
+    brighter = (x.float() * 1.2 + 20).round().to(torch.uint8)  # at most 235: no clipping
+    enc(x), enc(brighter)
+    std, mean = torch.std_mean(seen[0], dim=(2, 3))
+    torch.testing.assert_close(mean, torch.zeros_like(mean), atol=1e-4, rtol=0)
+    assert ((std - 1).abs() < 0.1).all()
+    moved = (seen[1] - seen[0]).abs().mean() / seen[0].abs().mean()
+    fixed = (PixelEncoder(depth=4)(brighter) - PixelEncoder(depth=4)(x)).abs()
+    assert moved < 0.01 and fixed.max() > 0
+    with pytest.raises(ValueError, match="norm"):
+        PixelEncoder(depth=4, norm="batch")
+    with pytest.raises(ValueError, match="input_norm"):
+        PixelEncoder(depth=4, input_norm="dataset")

@@ -13,7 +13,7 @@ import torch
 from tensordict import TensorDictBase
 
 from simdist.agents.dreamer import DreamerAgent, DreamerPolicy
-from simdist.modules import DreamerWorldModel
+from simdist.modules import DreamerWorldModel, RandomShift
 from simdist.objectives import ImaginedAlignmentLoss, TwistDistillationLoss
 from simdist.utils.device import module_device, move_to_device
 
@@ -21,6 +21,10 @@ from simdist.utils.device import module_device, move_to_device
 @dataclass
 class TwistConfig:
     """Student training settings (TWIST: slices of 50, imagination horizon 15).
+
+    ``shift_pad > 0`` applies DrQ's random shift (:class:`~simdist.modules.RandomShift`)
+    to the student's images in every update (never at deployment): one shift per slice
+    (``shift_per="sequence"``) or per image (``"frame"``).
 
     Examples:
         >>> from simdist.agents import DreamerConfig
@@ -38,6 +42,8 @@ class TwistConfig:
     horizon: int = 15
     action_noise_std: float = 0.3
     max_imagination_starts: int | None = 256
+    shift_pad: int = 0
+    shift_per: str = "sequence"
 
 
 class TwistStudent:
@@ -79,6 +85,9 @@ class TwistStudent:
                 max_starts=config.max_imagination_starts)
             self.imagined.set_keys(teacher_observation=teacher_obs,
                                    student_observation=pixels_key)
+        self.pixels_key = pixels_key
+        self.augment = (RandomShift(config.shift_pad, config.shift_per)
+                        if config.shift_pad else None)
         self.optim = torch.optim.Adam(student.parameters(), lr=config.lr)
 
     @property
@@ -94,6 +103,9 @@ class TwistStudent:
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One student step on ``L_distil (+ L_imagined)``; teacher parameters never move."""
         batch = batch.to(self.device)
+        if self.augment is not None:  # a shallow copy: the caller's images stay as they were
+            batch = batch.copy()
+            batch.set(self.pixels_key, self.augment(batch.get(self.pixels_key)))
         out = dict(self.distillation(batch).items())  # writes both posteriors into the batch
         total = out["loss_distillation"]
         if self.imagined is not None:

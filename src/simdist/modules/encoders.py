@@ -47,20 +47,45 @@ class PixelEncoder(nn.Module):
     Four 4x4 stride-2 convolutions with ``depth * (1, 2, 4, 8)`` channels, as in
     DreamerV2; output is the flattened ``8 * depth * 2 * 2`` feature vector.
 
+    Args:
+        depth: channels of the first convolution (DreamerV2: 48; ``"compact"``: 16).
+        image_size: must be 64.
+        norm: ``None`` (DreamerV2) or ``"layer"``: a LayerNorm over the channels of
+            every pixel after each convolution, before the activation (DreamerV3).
+        input_norm: ``"fixed"`` maps uint8 to ``[-0.5, 0.5]``; ``"image"`` standardises
+            each image per channel (zero mean, unit std over its pixels), which removes
+            a global colour or brightness shift before the first convolution.
+
     Examples:
         >>> enc = PixelEncoder(depth=8)
         >>> enc(torch.zeros(3, 64, 64, 3, dtype=torch.uint8)).shape
         torch.Size([3, 256])
+        >>> PixelEncoder(depth=8, norm="layer", input_norm="image")(
+        ...     torch.zeros(2, 5, 64, 64, 3, dtype=torch.uint8)).shape
+        torch.Size([2, 5, 256])
     """
 
-    def __init__(self, depth: int = 32, image_size: int = 64):
+    NORMS = (None, "layer")
+    INPUT_NORMS = ("fixed", "image")
+
+    def __init__(self, depth: int = 32, image_size: int = 64, norm: str | None = None,
+                 input_norm: str = "fixed"):
         super().__init__()
         if image_size != 64:
             raise ValueError(f"PixelEncoder expects 64x64 images, got image_size={image_size}")
-        self.image_size = image_size
+        if norm not in self.NORMS:
+            raise ValueError(f"norm must be one of {self.NORMS}, got {norm!r}")
+        if input_norm not in self.INPUT_NORMS:
+            raise ValueError(f"input_norm must be one of {self.INPUT_NORMS}, got {input_norm!r}")
+        if depth < 1:
+            raise ValueError(f"depth must be >= 1, got {depth}")
+        self.image_size, self.norm, self.input_norm = image_size, norm, input_norm
         layers, channels = [], 3
         for i in range(4):
-            layers += [nn.Conv2d(channels, depth * 2**i, 4, stride=2), nn.ELU()]
+            layers.append(nn.Conv2d(channels, depth * 2**i, 4, stride=2, bias=norm is None))
+            if norm == "layer":
+                layers.append(ChannelLayerNorm(depth * 2**i))
+            layers.append(nn.ELU())
             channels = depth * 2**i
         self.net = nn.Sequential(*layers, nn.Flatten())
         self.embed_dim = channels * 2 * 2
@@ -70,7 +95,22 @@ class PixelEncoder(nn.Module):
         lead = pixels.shape[:-3]
         x = pixels.reshape(-1, *pixels.shape[-3:]).permute(0, 3, 1, 2)
         x = x.float() / 255.0 - 0.5 if pixels.dtype == torch.uint8 else x.float()
+        if self.input_norm == "image":
+            std, mean = torch.std_mean(x, dim=(2, 3), keepdim=True)
+            x = (x - mean) / (std + 1e-2)
         return self.net(x).reshape(*lead, self.embed_dim)
+
+
+class ChannelLayerNorm(nn.LayerNorm):
+    """LayerNorm over the channels of each pixel of ``[N, C, H, W]`` maps (DreamerV3).
+
+    Examples:
+        >>> ChannelLayerNorm(4)(torch.randn(2, 4, 3, 3)).mean(1).abs().max().item() < 1e-5
+        True
+    """
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return super().forward(x.permute(0, 2, 3, 1)).permute(0, 3, 1, 2)
 
 
 class HistoryEncoder(nn.Module):

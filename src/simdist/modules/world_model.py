@@ -75,10 +75,15 @@ class DreamerWorldModel(nn.Module):
                    ScalarHead(rssm.feature_dim, s["head"]) if continue_head else None)
 
     @classmethod
-    def student(cls, action_dim: int, size: str = "small") -> DreamerWorldModel:
-        """Pixel-based TWIST student: CNN encoder, the same RSSM class, no heads."""
+    def student(cls, action_dim: int, size: str = "small", depth: int | None = None,
+                norm: str | None = None, input_norm: str = "fixed") -> DreamerWorldModel:
+        """Pixel-based TWIST student: CNN encoder, the same RSSM class, no heads.
+
+        ``depth`` (default: the size's), ``norm`` and ``input_norm`` configure the
+        :class:`PixelEncoder`; the RSSM sizes always follow ``size`` (the teacher's).
+        """
         s = _size(size)
-        encoder = PixelEncoder(depth=s["depth"])
+        encoder = PixelEncoder(depth=depth or s["depth"], norm=norm, input_norm=input_norm)
         rssm = RSSM(encoder.embed_dim, action_dim, s["deter_dim"], s["stoch"], s["classes"],
                     s["hidden_dim"])
         return cls(encoder, rssm)

@@ -1,0 +1,63 @@
+"""DrQ random shift: integer shifts with replicated edges, shared along a sequence or not."""
+
+import pytest
+import torch
+
+from simdist.modules import RandomShift
+
+
+def _ramp(lead=(2, 3), size=8):
+    """Images whose pixel value encodes (row, column): a shift is readable from them."""
+    rows = torch.arange(size)[:, None].expand(size, size)
+    cols = torch.arange(size)[None, :].expand(size, size)
+    image = torch.stack([rows, cols, rows * 0], -1).to(torch.uint8)
+    return image.expand(*lead, size, size, 3).clone()
+
+
+def _shift_of(images):
+    """(row, column) shift of each image, read at the centre pixel of a ramp."""
+    c = images.shape[-2] // 2
+    return images[..., c, c, :2].long() - c
+
+
+def test_shift_is_an_integer_translation_with_replicated_edges():
+    torch.manual_seed(0)
+    images = _ramp((64,))
+    out = RandomShift(pad=2, per="frame")(images)
+    assert out.dtype == torch.uint8 and out.shape == images.shape
+    shift = _shift_of(out)
+    assert shift.abs().max() <= 2 and len(torch.unique(shift, dim=0)) > 5
+    for image, (dy, dx) in zip(out, shift.tolist()):
+        rows = (torch.arange(8) + dy).clamp(0, 7)
+        cols = (torch.arange(8) + dx).clamp(0, 7)
+        assert torch.equal(image[..., 0], rows[:, None].expand(8, 8).to(torch.uint8))
+        assert torch.equal(image[..., 1], cols[None, :].expand(8, 8).to(torch.uint8))
+
+
+def test_sequence_mode_shares_one_shift_along_time_frame_mode_does_not():
+    torch.manual_seed(0)
+    images = _ramp((16, 5))
+    per_sequence = _shift_of(RandomShift(pad=3, per="sequence")(images))  # [16, 5, 2]
+    assert (per_sequence == per_sequence[:, :1]).all()
+    assert len(torch.unique(per_sequence[:, 0], dim=0)) > 1  # sequences differ
+    per_frame = _shift_of(RandomShift(pad=3, per="frame")(images))
+    assert not (per_frame == per_frame[:, :1]).all()
+
+
+def test_eval_mode_and_zero_pad_are_identity_and_bad_arguments_raise():
+    images = _ramp((2, 3))
+    assert torch.equal(RandomShift(pad=4).eval()(images), images)
+    assert torch.equal(RandomShift(pad=0)(images), images)
+    with pytest.raises(ValueError, match="pad"):
+        RandomShift(pad=-1)
+    with pytest.raises(ValueError, match="per"):
+        RandomShift(per="batch")
+    with pytest.raises(ValueError, match="sequence"):
+        RandomShift(pad=2, per="sequence")(torch.zeros(8, 8, 3))
+
+
+def test_generator_makes_shifts_reproducible_and_float_images_work():
+    images = _ramp((4, 2)).float()
+    a = RandomShift(2, generator=torch.Generator().manual_seed(3))(images)
+    b = RandomShift(2, generator=torch.Generator().manual_seed(3))(images)
+    assert a.dtype == torch.float32 and torch.equal(a, b)
