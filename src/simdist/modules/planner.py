@@ -1,4 +1,4 @@
-"""Latent MPPI/CEM planner (SimDist reference algorithm, METHODS.md Sec. 1.4).
+"""Latent MPPI/CEM planner (SimDist reference algorithm, docs/methods.md Sec. 1.4).
 
 Differences from TorchRL 0.14's ``MPPIPlanner``, each measured or tested: the sampling
 distribution is warm-started from the previous plan shifted by one step (reset per env

@@ -119,7 +119,9 @@ class DreamerActorCriticLoss(SimdistLoss):
         world_model: a model with a reward head (the teacher).
         actor: :class:`~simdist.modules.Actor`.
         critic: value head on model features.
-        horizon, gamma, lmbda: imagination length, discount, lambda.
+        horizon: imagination length.
+        gamma: discount.
+        lmbda: the lambda of the lambda-returns.
         entropy_coeff: weight of the actor's entropy bonus.
         target_tau: Polyak rate of :meth:`update_target`.
         max_starts: imagine from at most this many posterior states, drawn at random

@@ -22,7 +22,8 @@ class ImaginedAlignmentLoss(TwistDistillationLoss):
     already wrote them (the student's still carry gradient), otherwise filtered here.
 
     Args:
-        teacher, student: world models with matching RSSM sizes.
+        teacher: the frozen teacher world model.
+        student: the student world model (same RSSM sizes as the teacher).
         teacher_actor: maps teacher features to actions in [-1, 1] (e.g. ``Actor``'s
             deterministic mode).
         horizon: imagined steps (TWIST: 15).

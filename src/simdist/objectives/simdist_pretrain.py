@@ -1,4 +1,4 @@
-"""SimDist world-model pretraining and dynamics-only finetuning (METHODS.md Sec. 1.3, 1.5)."""
+"""SimDist world-model pretraining and dynamics-only finetuning (docs/methods.md 1.3, 1.5)."""
 
 from __future__ import annotations
 
