@@ -61,16 +61,22 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert changed.returncode != 0 and "different config" in changed.stderr
 
     # the gap-diagnosis script runs on a finished recipe output
-    for variant in ("state", "probe"):
+    # (the second probe: the perception options, re-rendered extra and held-out images)
+    for variant, extra in (("state", []), ("probe", []),
+                           ("probe", ["--depth", "6", "--norm", "layer", "--input-norm", "image",
+                                      "--shift", "4", "--extra-renders", "1",
+                                      "--heldout-renders"])):
         diag = subprocess.run(
             [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
              "--preset", "tiny", "--outputs", str(tmp_path), "--updates", "2",
-             "--episodes", "1", "--batch", "4", "--work", str(tmp_path / "diagnosis")],
+             "--episodes", "1", "--batch", "4", "--work", str(tmp_path / "diagnosis"), *extra],
             capture_output=True, text=True, timeout=300)
         assert diag.returncode == 0, diag.stderr
         line = json.loads(diag.stdout.strip().splitlines()[-1])
         assert line["variant"] == variant and line["updates"] == 2
         assert ("mean" in line) if variant == "state" else len(line["r2_test"]) == 5
+        if extra:
+            assert len(line["r2_heldout"]) == 5 and line["images_train"] % 2 == 0
 
 
 def test_unknown_task_is_a_clear_error(tmp_path):
