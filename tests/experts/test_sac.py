@@ -48,3 +48,25 @@ def test_fast_deterministic_policy_matches_the_actor():
     td = TensorDict({"observation": torch.randn(5, 89) * 3}, [5])
     torch.testing.assert_close(expert.deterministic()(td.clone())["action"],
                                expert.act(td.clone())["action"])
+
+
+def test_load_checks_the_experts_keys_and_weights(tmp_path):
+    from simdist.utils import CorruptCheckpointError, load_checkpoint, save_atomic
+
+    path = Expert.untrained(obs_dim=5, action_dim=2, hidden=8).save(
+        tmp_path / "expert.pt", obs_dim=5, config=SACExpertConfig(hidden=8))
+    assert Expert.load(path).act(
+        __import__("tensordict").TensorDict({"observation": torch.zeros(1, 5)}, [1])
+    )["action"].shape == (1, 2)
+    good = load_checkpoint(path)
+    for key in Expert.REQUIRED_KEYS:
+        save_atomic({k: v for k, v in good.items() if k != key}, tmp_path / "bad.pt")
+        with pytest.raises(CorruptCheckpointError, match=f"lacks \\['{key}'\\]") as info:
+            Expert.load(tmp_path / "bad.pt")
+        assert str(tmp_path / "bad.pt") in str(info.value) and "train_expert" in str(info.value)
+    save_atomic({**good, "obs_dim": 7}, tmp_path / "bad.pt")  # weights of another size
+    with pytest.raises(CorruptCheckpointError, match="weights do not fit"):
+        Expert.load(tmp_path / "bad.pt")
+    (tmp_path / "bad.pt").write_bytes(path.read_bytes()[:100])  # truncated
+    with pytest.raises(CorruptCheckpointError, match="corrupt or incompatible.*train_expert"):
+        Expert.load(tmp_path / "bad.pt")

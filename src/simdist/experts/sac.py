@@ -10,7 +10,6 @@ policies make the SimDist dataset mixed-quality.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +26,8 @@ from tqdm import tqdm
 
 from simdist.envs import DynamicsRandomisation, make_env
 from simdist.experts.networks import make_actor, make_critic
-from simdist.utils.checkpoint import load_checkpoint, save_atomic
+from simdist.utils.atomic import write_json_atomic
+from simdist.utils.checkpoint import CorruptCheckpointError, load_checkpoint, save_atomic
 
 
 @dataclass
@@ -149,20 +149,51 @@ class Expert:
             "config": dataclasses.asdict(config)}, path)
         return path
 
+    #: What :meth:`save` writes and :meth:`load` needs.
+    REQUIRED_KEYS = ("actor", "critic", "obs_dim", "action_low", "action_high", "config")
+    _RECOVERY = ("retrain it (python recipes/train_expert.py, or train_sac_expert) or pass "
+                 "the path of a good expert.pt")
+
     @classmethod
     def load(cls, path: str | Path, snapshot: str | None = None) -> Expert:
-        """Loads ``expert.pt`` (the final policy, or a named earlier ``snapshot``)."""
-        ckpt = load_checkpoint(path)
-        cfg = ckpt["config"]
-        spec_low, spec_high = ckpt["action_low"], ckpt["action_high"]
+        """Loads ``expert.pt`` (the final policy, or a named earlier ``snapshot``).
+
+        Raises:
+            CorruptCheckpointError: the file is corrupt, lacks one of
+                :attr:`REQUIRED_KEYS`, or its weights do not fit the networks it describes.
+            KeyError: no such ``snapshot``.
+        """
+        ckpt = load_checkpoint(path, recovery=cls._RECOVERY)
+
+        def incompatible(why: str) -> CorruptCheckpointError:
+            return CorruptCheckpointError(f"expert {str(path)!r} is corrupt or incompatible: "
+                                          f"{why}. To recover, {cls._RECOVERY}")
+
+        if not isinstance(ckpt, dict):
+            raise incompatible(f"it holds a {type(ckpt).__name__}, not an expert's dict")
+        missing = [k for k in cls.REQUIRED_KEYS if k not in ckpt]
+        if missing:
+            raise incompatible(f"it lacks {missing} (has {sorted(map(str, ckpt))}); is it a "
+                               "training checkpoint (latest.pt) rather than expert.pt?")
+        cfg, spec_low, spec_high = ckpt["config"], ckpt["action_low"], ckpt["action_high"]
+        if not (isinstance(cfg, dict) and "hidden" in cfg):
+            raise incompatible("its 'config' has no 'hidden' size")
+        if not (isinstance(spec_low, torch.Tensor) and isinstance(spec_high, torch.Tensor)
+                and spec_low.shape == spec_high.shape and spec_low.dim() == 1):
+            raise incompatible("'action_low'/'action_high' are not two equal 1-d tensors")
+        snapshots = ckpt.get("snapshots", {})
+        if snapshot is not None and snapshot not in snapshots:
+            raise KeyError(f"no snapshot {snapshot!r}; available: {sorted(snapshots)}")
         from torchrl.data import Bounded
         spec = Bounded(spec_low, spec_high, spec_low.shape)
         actor = make_actor(ckpt["obs_dim"], spec, cfg["hidden"])
         critic = make_critic(ckpt["obs_dim"], spec_low.shape[-1], cfg["hidden"])
-        if snapshot is not None and snapshot not in ckpt["snapshots"]:
-            raise KeyError(f"no snapshot {snapshot!r}; available: {sorted(ckpt['snapshots'])}")
-        actor.load_state_dict(ckpt["snapshots"][snapshot] if snapshot else ckpt["actor"])
-        critic.load_state_dict(ckpt["critic"])
+        try:
+            actor.load_state_dict(snapshots[snapshot] if snapshot else ckpt["actor"])
+            critic.load_state_dict(ckpt["critic"])
+        except (RuntimeError, TypeError, AttributeError) as err:  # wrong or mis-shaped weights
+            raise incompatible(f"its weights do not fit the networks it describes "
+                               f"({str(err).splitlines()[0]})") from None
         return cls(actor.eval(), critic.eval())
 
 
@@ -258,7 +289,7 @@ def _export(out_dir, cfg, loss, state, obs_dim, action_spec) -> Path:
     critic.load_state_dict(_critic_state(loss))
     path = Expert(actor, critic).save(out_dir / "expert.pt", obs_dim, cfg, state["snapshots"],
                                       state["curve"], state["frames"])
-    (out_dir / "training_curve.json").write_text(json.dumps(state["curve"], indent=2))
+    write_json_atomic(out_dir / "training_curve.json", state["curve"])
     return path
 
 

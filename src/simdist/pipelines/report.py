@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from simdist.utils.atomic import atomic_path
+
 
 def _methods(results: dict) -> list[str]:
     return [k for k in results if k not in ("minutes", "planner_in_sim")]
@@ -66,5 +68,6 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
     ax.set_title(f"SimDist transfer to {target}")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:  # a crash mid-write keeps the previous plot
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)

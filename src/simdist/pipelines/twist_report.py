@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from simdist.utils.atomic import atomic_path
+
 ORACLE = "Oracle (state teacher)"
 
 
@@ -93,5 +95,6 @@ def plot_results(results: dict, path: str | Path) -> None:
     ax.set_title("TWIST: image students vs baselines")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:  # a crash mid-write keeps the previous plot
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)

@@ -1,9 +1,13 @@
 """Utilities: atomic checkpoints, checkpointed recipe stages, devices."""
 
-from simdist.utils.checkpoint import load_checkpoint, save_atomic
+from simdist.utils.atomic import atomic_path, write_json_atomic, write_text_atomic
+from simdist.utils.checkpoint import (CorruptCheckpointError, CorruptFileError, load_checkpoint,
+                                      save_atomic)
 from simdist.utils.device import (device_argument, module_device, move_to_device,
                                   resolve_device)
-from simdist.utils.stages import StageRunner, run_jobs
+from simdist.utils.stages import StageRunner, read_json, run_jobs
 
 __all__ = ["load_checkpoint", "save_atomic", "StageRunner", "run_jobs", "device_argument",
-           "module_device", "move_to_device", "resolve_device"]
+           "module_device", "move_to_device", "resolve_device", "atomic_path",
+           "write_json_atomic", "write_text_atomic", "CorruptCheckpointError",
+           "CorruptFileError", "read_json"]

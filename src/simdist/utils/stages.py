@@ -6,16 +6,42 @@ import dataclasses
 import json
 import multiprocessing
 import os
+import signal
+import sys
+import threading
 import time
+import weakref
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from simdist.utils.atomic import write_json_atomic
+from simdist.utils.checkpoint import CorruptFileError, recovery_hint
 
-def _atomic_json(path: Path, payload: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=str))
-    tmp.replace(path)
+#: Config keys that say where a run writes, not what it computes: never compared, so the
+#: same folder spelled ``out``, ``out/`` or ``/abs/out`` resumes the same run.
+LOCATION_KEYS = ("output_dir", "out_dir", "outputs", "output")
+
+
+def read_json(path: str | os.PathLike, what: str = "file", recovery: str | None = None) -> Any:
+    """``json.loads`` of a file, failing with the file's name and how to recover.
+
+    Args:
+        path: the JSON file.
+        what: what the file is, for the message (e.g. ``"stage record"``).
+        recovery: what to do if it is corrupt (default: :func:`recovery_hint`).
+
+    Raises:
+        CorruptFileError: the file is not valid UTF-8 JSON (e.g. truncated by a crash or
+            a full disk).
+    """
+    path = Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise CorruptFileError(f"{what} {str(path)!r} is corrupt (not valid JSON: {err}). "
+                               f"To recover, {recovery or recovery_hint(path)}") from None
 
 
 class StageRunner:
@@ -28,7 +54,15 @@ class StageRunner:
     as ``<out>/config.json``; rerunning into the same directory with a different config
     raises instead of mixing results. ``runtime_keys`` name settings that change where or
     how fast the work runs but not its results (e.g. ``device``): they are saved, not
-    compared, so a run started on one device can be resumed on another.
+    compared, so a run started on one device can be resumed on another. ``location_keys``
+    (default :data:`LOCATION_KEYS`, e.g. ``output_dir``) are not compared either: a run's
+    identity is what it computes, not how its folder is spelled.
+
+    One run at a time: the runner holds an exclusive ``flock`` on ``<out>/.lock`` (with
+    the holder's pid inside) for as long as it lives, and a second run into the same
+    folder fails at once, naming the folder and that pid. The kernel drops the lock when
+    the holding process exits or is killed, so a crashed run never blocks its rerun.
+    Runners of the same process share the lock, as do the workers of :func:`run_jobs`.
 
     Examples:
         >>> import tempfile
@@ -37,25 +71,52 @@ class StageRunner:
         {'n': 3}
         >>> runner.run("count", lambda d: {"n": 99})  # finished: not run again
         {'n': 3}
+        >>> runner.close()  # releases the folder's lock (also done when it is collected)
     """
 
-    def __init__(self, out_dir: str | Path, config: Any, runtime_keys: Sequence[str] = ()):
+    def __init__(self, out_dir: str | Path, config: Any, runtime_keys: Sequence[str] = (),
+                 location_keys: Sequence[str] = LOCATION_KEYS):
         self.out = Path(out_dir)
         (self.out / "stages").mkdir(parents=True, exist_ok=True)
+        # Lock before reading or writing anything: the other run may be writing config.json.
+        key = _acquire_lock(self.out)
+        self._release = weakref.finalize(self, _release_lock, key)
+        try:
+            self.config = self._check_config(config, set(runtime_keys) | set(location_keys))
+        except BaseException:
+            self.close()
+            raise
+        self.timings: dict[str, float] = {}
+
+    def _check_config(self, config: Any, ignored: set[str]) -> dict:
         config = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
         config = json.loads(json.dumps(config, default=str))
         saved = self.out / "config.json"
         if saved.exists():
-            previous = json.loads(saved.read_text())
+            previous = read_json(saved, "run config", recovery=(
+                f"delete {saved} and rerun with the settings this folder's results were "
+                "made with (it is rewritten from them), or use another --output-dir"))
+            if not isinstance(previous, dict):
+                raise CorruptFileError(f"run config {str(saved)!r} is not a JSON object; "
+                                       f"delete it and rerun with this folder's settings")
             changed = sorted(k for k in set(previous) | set(config)
-                             if previous.get(k) != config.get(k) and k not in runtime_keys)
+                             if previous.get(k) != config.get(k) and k not in ignored)
             if changed:
                 raise ValueError(f"{self.out} holds results of a different config (changed: "
                                  f"{changed}); use another --output-dir or the same settings")
         else:
-            _atomic_json(saved, config)
-        self.config = config
-        self.timings: dict[str, float] = {}
+            write_json_atomic(saved, config, default=str)
+        return config
+
+    def close(self) -> None:
+        """Releases this runner's hold on the folder's lock (idempotent)."""
+        self._release()
+
+    def __enter__(self) -> StageRunner:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def stage_dir(self, name: str) -> Path:
         path = self.out / "stages" / name
@@ -68,14 +129,18 @@ class StageRunner:
     def run(self, name: str, fn: Callable[[Path], dict]) -> dict:
         record = self.out / "stages" / f"{name}.json"
         if record.exists():
-            stored = json.loads(record.read_text())
+            stored = read_json(record, f"record of stage {name!r}")
+            if not (isinstance(stored, dict) and {"result", "seconds"} <= set(stored)):
+                raise CorruptFileError(f"record of stage {name!r} {str(record)!r} is "
+                                       "incompatible (no 'result' and 'seconds'). To "
+                                       f"recover, {recovery_hint(record)}")
             self.timings[name] = stored["seconds"]
             return stored["result"]
         start = time.perf_counter()
         result = fn(self.stage_dir(name))
         seconds = time.perf_counter() - start
         self.timings[name] = seconds
-        _atomic_json(record, {"result": result, "seconds": seconds})
+        write_json_atomic(record, {"result": result, "seconds": seconds}, default=str)
         return result
 
     def result(self, name: str) -> dict:
@@ -89,6 +154,56 @@ class StageRunner:
         return self.run(name, lambda d: {})
 
 
+# -- one run per folder ---------------------------------------------------------------------
+# Locks this process holds: {resolved folder: [fd, number of runners using it]}.
+_HELD: dict[str, list[int]] = {}
+# Folders whose lock the parent process holds for us (we are one of its run_jobs workers).
+_INHERITED: set[str] = set()
+_LOCKS_GUARD = threading.Lock()
+
+
+def _acquire_lock(out: Path) -> str:
+    key = str(out.resolve())
+    with _LOCKS_GUARD:
+        if key in _HELD:
+            _HELD[key][1] += 1
+            return key
+        if key in _INHERITED:
+            return key
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: no locking
+            return key
+        path = out / ".lock"
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 64).decode(errors="replace").strip()
+            os.close(fd)
+            who = f"process {holder}" if holder.isdigit() else "another process"
+            raise RuntimeError(
+                f"output folder {str(out)!r} is in use by another run ({who} holds "
+                f"{str(path)!r}); wait for it to finish, stop it, or use another "
+                "--output-dir") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        _HELD[key] = [fd, 1]
+        return key
+
+
+def _release_lock(key: str) -> None:
+    with _LOCKS_GUARD:
+        held = _HELD.get(key)
+        if held is None:
+            return
+        held[1] -= 1
+        if held[1] == 0:
+            del _HELD[key]
+            os.close(held[0])  # closing the last descriptor drops the flock
+
+
+# -- parallel jobs ---------------------------------------------------------------------------
 def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
     """Runs independent ``(fn, args)`` calls, ``jobs`` at a time; returns their results in order.
 
@@ -98,6 +213,11 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
     each other's results share a 2-core machine instead of queueing. On an error, calls not
     yet started are cancelled, those running finish (a recipe stage keeps what it
     checkpointed), then the first error is raised.
+
+    Workers die with this process: killing it (even with SIGKILL) leaves no orphans (on
+    Linux the kernel signals them; elsewhere they notice within a second). A worker that
+    dies (killed, out of memory) fails the run with ``BrokenProcessPool`` naming the calls
+    that had not finished. Workers share this process's :class:`StageRunner` folder locks.
 
     Examples:
         >>> run_jobs([(pow, (2, 3)), (divmod, (7, 2))])
@@ -110,13 +230,25 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
     if jobs == 1 or len(calls) <= 1:
         return [fn(*args) for fn, args in calls]
     threads = max(1, (os.cpu_count() or 1) // jobs)
+    with _LOCKS_GUARD:
+        locks = sorted(set(_HELD) | _INHERITED)
     # spawn, not fork: forked children of a process that already ran torch/OpenMP or
     # opened a GL context can deadlock.
     pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_init_worker, initargs=(threads,))
+                               initializer=_init_worker, initargs=(threads, os.getpid(), locks))
+    futures = []
     try:
         futures = [pool.submit(fn, *args) for fn, args in calls]
         return [future.result() for future in futures]
+    except BrokenProcessPool as err:
+        pool.shutdown(wait=True, cancel_futures=True)
+        finished = [f.done() and not f.cancelled() and f.exception() is None for f in futures]
+        finished += [False] * (len(calls) - len(finished))  # broke while submitting
+        unfinished = [_describe(fn, args) for (fn, args), ok in zip(calls, finished) if not ok]
+        raise BrokenProcessPool(
+            f"a run_jobs worker process died abruptly (killed by a signal or the "
+            f"out-of-memory killer?) while these calls had not finished: {unfinished}. "
+            "Finished work is kept: rerun the same command to resume") from err
     except BaseException:
         pool.shutdown(wait=True, cancel_futures=True)
         raise
@@ -124,6 +256,38 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
         pool.shutdown(wait=True)
 
 
-def _init_worker(threads: int) -> None:
+def _describe(fn: Callable, args: tuple) -> str:
+    """``name(arg, ...)`` with each argument's repr cut short (configs are long)."""
+    shown = [r if len(r) <= 40 else r[:37] + "..." for r in map(repr, args)]
+    return f"{getattr(fn, '__qualname__', repr(fn))}({', '.join(shown)})"
+
+
+def _init_worker(threads: int, parent: int, locks: Sequence[str]) -> None:
+    _INHERITED.update(locks)
+    _die_with_parent(parent)
     import torch
     torch.set_num_threads(threads)
+
+
+def _die_with_parent(parent: int) -> None:
+    """Makes this process exit when ``parent`` does, however the parent ends."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+            libc = ctypes.CDLL(None, use_errno=True)
+            PR_SET_PDEATHSIG = 1
+            # SIGKILL: a worker stuck in native code (torch, MuJoCo) must still go.
+            libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # the watchdog below still works
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+    # Fallback where prctl is unavailable (macOS): poll the parent pid once a second. An
+    # orphan is re-parented, so its parent pid changes.
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="simdist-parent-watchdog", daemon=True).start()
