@@ -143,3 +143,54 @@ def test_per_dimension_action_bounds():
     with pytest.raises(ValueError, match="action_bounds"):
         LatentMPPIPlanner(lambda z, a: z, lambda z, a: z, None, 2,
                           action_bounds=(torch.zeros(2), torch.zeros(2)))
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(num_samples=64.5), "num_samples must be an integer, got 64.5"),
+    (dict(horizon=5.0), "horizon must be an integer"),
+    (dict(iterations=True), "iterations must be an integer"),
+    (dict(policy_noise=math.nan), "policy_noise must be a finite number, got nan"),
+    (dict(policy_noise=math.inf), "policy_noise must be a finite number"),
+    (dict(max_std=math.inf), "max_std must be a finite number"),
+    (dict(action_high=math.inf), "action_high must be a finite number"),
+])
+def test_non_integer_counts_and_non_finite_values_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        PlannerConfig(**kwargs)
+
+
+def _point_mass(**kwargs):
+    return LatentMPPIPlanner(lambda z, a: z + 0.1 * a, lambda z, a: -(z - 1).pow(2).sum(
+        -1, keepdim=True), None, 1, PlannerConfig(horizon=3, num_samples=16, num_elites=4),
+        seed=0, **kwargs)
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_non_finite_latent_is_refused_naming_the_key(value):
+    planner = _point_mass(latent_key="z")
+    latent = torch.zeros(2, 1)
+    latent[1] = value
+    with pytest.raises(ValueError, match="'z' contains NaN or inf"):
+        planner(TensorDict({"z": latent}, [2]))
+    with pytest.raises(ValueError, match="contains NaN or inf"):  # all of it, unbatched too
+        planner(TensorDict({"z": torch.full((1,), value)}, []))
+
+
+def test_wrong_latent_size_and_is_init_batch_fail_at_the_boundary():
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(obs_dim=4, action_dim=3, size="tiny")
+    planner = LatentMPPIPlanner.from_world_model(wm, PlannerConfig(horizon=2, num_samples=8,
+                                                                   num_elites=2))
+    with pytest.raises(ValueError, match=f"'latent' has size 5, the models expect "
+                                         f"{wm.latent_dim}"):
+        _plan(planner, torch.zeros(2, 5))
+    with pytest.raises(ValueError, match="'is_init' must hold one flag per environment \\(2"):
+        planner(TensorDict({"latent": torch.zeros(2, wm.latent_dim),  # unbatched TensorDict
+                            "is_init": torch.zeros(3, 1, dtype=torch.bool)}, []))
+    with pytest.raises(TypeError, match="'latent' must be floating point"):
+        _plan(planner, torch.zeros(2, wm.latent_dim, dtype=torch.long))
+    # Models of unknown latent size: the failure still names the key and the shape.
+    plain = LatentMPPIPlanner(lambda z, a: z @ torch.ones(4, 4), lambda z, a: z[:, :1], None, 1,
+                              PlannerConfig(horizon=2, num_samples=8, num_elites=2))
+    with pytest.raises(RuntimeError, match="planning from 'latent' of shape \\(2, 5\\)"):
+        _plan(plain, torch.zeros(2, 5))

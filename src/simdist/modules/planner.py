@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -54,8 +55,18 @@ class PlannerConfig:
 
     def __post_init__(self):
         for name in ("horizon", "num_samples", "iterations", "num_elites"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+            value = getattr(self, name)
+            # bool is an int, and 2.5 would be truncated silently by the tensor shapes.
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                raise ValueError(f"{name} must be an integer, got {value!r}")
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        for name in ("temperature", "gamma", "init_std", "min_std", "max_std",
+                     "policy_fraction", "policy_noise", "action_low", "action_high"):
+            value = getattr(self, name)
+            # NaN passes every "< 0" style check below, so test finiteness first.
+            if not (isinstance(value, numbers.Real) and math.isfinite(value)):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
         if self.num_elites > self.num_samples:
             raise ValueError(f"num_elites ({self.num_elites}) must be <= num_samples "
                              f"({self.num_samples})")
@@ -115,6 +126,13 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             uses CUDA graphs). Eager by default.
         action_bounds: per-dimension ``(low, high)`` tensors (e.g. an env's action spec),
             overriding the config's scalar bounds.
+        latent_dim: the latent size ``L`` the models expect, checked on every call
+            (default: ``dynamics.latent_dim`` if it has one; ``from_world_model`` sets it).
+
+    Inputs are checked at the boundary, naming the key: ``latent`` must be a finite
+    floating-point ``[B, L]`` (a NaN or inf latent would otherwise give a finite,
+    meaningless action) and ``is_init`` must hold one flag per environment. The checks
+    cost one ``isfinite().all()`` per call and run outside the compiled loop.
 
     Examples:
         >>> from tensordict import TensorDict
@@ -130,9 +148,12 @@ class LatentMPPIPlanner(TensorDictModuleBase):
     def __init__(self, dynamics, reward, value, action_dim: int,
                  config: PlannerConfig = PlannerConfig(), policy=None, seed: int = 0,
                  compile: bool = False, latent_key="latent", action_key="action",
-                 is_init_key="is_init", action_bounds=None):
+                 is_init_key="is_init", action_bounds=None, latent_dim: int | None = None):
         super().__init__()
         self.config, self.action_dim = config, int(action_dim)
+        latent_dim = latent_dim if latent_dim is not None else getattr(
+            _as_function(dynamics), "latent_dim", None)
+        self.latent_dim = int(latent_dim) if latent_dim is not None else None
         self.latent_key, self.action_key, self.is_init_key = latent_key, action_key, is_init_key
         self.in_keys = [latent_key, is_init_key]
         self.out_keys = [action_key, ("planner", "mean"), ("planner", "std"),
@@ -164,6 +185,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
     def from_world_model(cls, world_model, config: PlannerConfig = PlannerConfig(),
                          use_policy: bool = True, **kwargs) -> LatentMPPIPlanner:
         """A planner over a :class:`~simdist.modules.SimDistWorldModel`'s verbs."""
+        kwargs.setdefault("latent_dim", world_model.latent_dim)
         return cls(world_model.dynamics, world_model.reward_head, world_model.value_head,
                    world_model.action_dim, config,
                    policy=world_model.policy_head if use_policy else None, **kwargs)
@@ -258,8 +280,22 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         if latent.dim() != 2:
             raise ValueError(f"{self.latent_key!r} must be [B, L] (or [L]), got "
                              f"{tuple(latent.shape)}")
+        if self.latent_dim is not None and latent.shape[-1] != self.latent_dim:
+            raise ValueError(f"{self.latent_key!r} has size {latent.shape[-1]}, the models "
+                             f"expect {self.latent_dim} (shape {tuple(latent.shape)})")
+        if not latent.is_floating_point():
+            raise TypeError(f"{self.latent_key!r} must be floating point, got {latent.dtype}")
+        # One check (a host sync on CUDA) per call: a NaN/inf latent would otherwise be
+        # planned from silently, giving a finite but meaningless action.
+        if not torch.isfinite(latent).all():
+            raise ValueError(f"{self.latent_key!r} contains NaN or inf (is the encoder's "
+                             "input finite?); refusing to plan from it")
         is_init = tensordict.get(self.is_init_key, None)
         c, B = self.config, latent.shape[0]
+        if is_init is not None and is_init.numel() != B:
+            raise ValueError(f"{self.is_init_key!r} must hold one flag per environment "
+                             f"({B}, as {self.latent_key!r} {tuple(latent.shape)}), got "
+                             f"shape {tuple(is_init.shape)}")
         gen = self._noise_generator(latent.device)
         with torch.no_grad():
             mean = self._initial_mean(latent, is_init)
@@ -271,8 +307,14 @@ class LatentMPPIPlanner(TensorDictModuleBase):
                 policy_noise = torch.randn(B, c.num_policy, c.horizon, self.action_dim,
                                            generator=gen, device=latent.device,
                                            dtype=latent.dtype)
-            mean, std, rewards, value, elites = self._plan_impl(latent, mean, sample_noise,
-                                                                policy_noise)
+            try:
+                mean, std, rewards, value, elites = self._plan_impl(latent, mean, sample_noise,
+                                                                    policy_noise)
+            except RuntimeError as err:  # e.g. a latent size the models do not take
+                raise RuntimeError(f"LatentMPPIPlanner: planning from {self.latent_key!r} of "
+                                   f"shape {tuple(latent.shape)} failed inside the models "
+                                   f"(does its size match what dynamics/reward/value take? "
+                                   f"pass latent_dim= to check it up front): {err}") from err
         self._previous_mean = mean
         action = mean[:, 0]
         outputs = {self.action_key: action, ("planner", "mean"): mean, ("planner", "std"): std,
