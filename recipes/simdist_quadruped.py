@@ -45,7 +45,8 @@ from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, train_resumable)
 from simdist.pipelines.report import plot_results, print_table
-from simdist.utils import StageRunner, device_argument, load_checkpoint, save_atomic
+from simdist.utils import (StageRunner, device_argument, load_checkpoint, load_memmap,
+                           save_atomic, save_memmap)
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -231,12 +232,12 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     done_before = previous["target_steps"] if previous else 0
     simdist_agent = load_agent(cfg, pretrained, previous and previous["simdist"])
     data_dir = stage_dir / "data"
-    if not (data_dir / "meta.json").exists():  # memmap is written last-to-first: meta last
+    if not data_dir.exists():  # save_memmap renames a complete folder into place
         fresh = collect_target_data(cfg, simdist_agent, budget - done_before,
                                     seed=cfg.seed + 1000 * (k + 1))
-        fresh.memmap(data_dir)
-    fresh = TensorDict.load_memmap(data_dir)
-    parts = [TensorDict.load_memmap(Path(p)) for p in (previous["data"] if previous else [])]
+        save_memmap(fresh, data_dir)
+    fresh = load_memmap(data_dir)
+    parts = [load_memmap(Path(p)) for p in (previous["data"] if previous else [])]
     data = torch.cat([*parts, fresh], 0)
     buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
     sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731

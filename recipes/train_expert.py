@@ -8,9 +8,9 @@ The committed experts came from two commands (README, "Experts and perturbed dat
     # 1. flat ground, from scratch: 400k frames, ~2.2 h on 2 cores
     python recipes/train_expert.py --task quadruped-flat --out checkpoints/quadruped_expert_flat
     # 2. mixed terrain (slopes of -15..15 degrees), continuing the flat expert
-    python recipes/train_expert.py --task quadruped-terrain --frames 120000 \
+    python recipes/train_expert.py --task quadruped-terrain --frames 100000 \
         --init-from checkpoints/quadruped_expert_flat/expert.pt --alpha-init 0.02 \
-        --init-random-frames 5000 --out checkpoints/quadruped_expert
+        --init-random-frames 10000 --updates-per-batch 16 --out checkpoints/quadruped_expert
 
     python recipes/train_expert.py --frames 20000        # a quick look
 """
@@ -61,13 +61,17 @@ def main(argv=None):
                         default=SACExpertConfig.init_random_frames,
                         help="frames before the first update (random actions unless "
                              "--init-from)")
+    parser.add_argument("--updates-per-batch", type=int,
+                        default=SACExpertConfig.updates_per_batch,
+                        help=f"SAC updates per {SACExpertConfig.frames_per_batch} frames")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     get_task(args.task)  # an unknown task fails before any work
     cfg = SACExpertConfig(task=args.task, total_frames=args.frames, seed=args.seed,
                           init_from=args.init_from, alpha_init=args.alpha_init,
-                          init_random_frames=args.init_random_frames)
+                          init_random_frames=args.init_random_frames,
+                          updates_per_batch=args.updates_per_batch)
     path = train_sac_expert(cfg, args.out, progress=not args.no_progress)
     expert = Expert.load(path)
     plot_training_curve(load_checkpoint(path)["curve"], path.parent / "training_curve.png")

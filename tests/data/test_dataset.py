@@ -10,6 +10,7 @@ import simdist.data.dataset as dataset_module
 from simdist.data import (DatasetConfig, collect_shards, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.experts import Expert
+from simdist.utils import load_memmap
 
 CFG = DatasetConfig(episodes=6, shard_episodes=2, episode_steps=12, dynamics_randomisation=True)
 
@@ -26,7 +27,7 @@ def reference(tmp_path_factory, experts):
 
 
 def test_dataset_layout_and_metadata(reference, experts):
-    data = TensorDict.load_memmap(reference / "data")
+    data = load_memmap(reference / "data")
     assert data.shape == (6, 12)
     assert torch.equal(data["episode"][:, 0], torch.arange(6))
     assert data["is_init"][:, 0].all() and not data["is_init"][:, 1:].any()
@@ -45,7 +46,7 @@ def test_dataset_layout_and_metadata(reference, experts):
 
 
 def test_value_labels_equal_the_critic_on_stored_observations(reference, experts):
-    data = TensorDict.load_memmap(reference / "data").reshape(-1)
+    data = load_memmap(reference / "data").reshape(-1)
     expected = experts[0].value(data.select("observation").to_tensordict())
     torch.testing.assert_close(data["value_target"].clone(), expected)
 
@@ -69,8 +70,8 @@ def test_killed_generation_resumes_without_duplicates_or_losses(tmp_path, expert
         load_dataset(tmp_path, slice_len=4, batch_size=8)
     monkeypatch.setattr(dataset_module, "_label_shard", real)
     generate_dataset(CFG, tmp_path, *experts, progress=False)  # the same command again
-    resumed = TensorDict.load_memmap(tmp_path / "data")
-    ref = TensorDict.load_memmap(reference / "data")
+    resumed = load_memmap(tmp_path / "data")
+    ref = load_memmap(reference / "data")
     assert (resumed == ref).all()  # identical: no duplicated, no missing trajectory
     assert sorted(resumed["episode"][:, 0].tolist()) == list(range(6))
 
@@ -99,7 +100,7 @@ def test_worker_processes_give_a_deterministic_resumable_dataset(tmp_path, exper
     cfg = DatasetConfig(episodes=4, shard_episodes=4, num_workers=2, episode_steps=8)
     a = generate_dataset(cfg, tmp_path / "a", *experts, progress=False)
     b = generate_dataset(cfg, tmp_path / "b", *experts, progress=False)
-    da, db = TensorDict.load_memmap(a / "data"), TensorDict.load_memmap(b / "data")
+    da, db = load_memmap(a / "data"), load_memmap(b / "data")
     assert da.shape == (4, 8) and (da == db).all()
     assert torch.equal(da["episode"][:, 0], torch.arange(4))
     with pytest.raises(ValueError, match="multiple of num_workers"):

@@ -12,6 +12,7 @@ from tensordict import TensorDict
 import simdist.data.dataset as dataset_module
 from simdist.data import DatasetConfig, generate_dataset
 from simdist.experts import Expert
+from simdist.utils import load_memmap
 
 ray = pytest.importorskip("ray")
 
@@ -34,7 +35,7 @@ def experts():
 def test_ray_shards_equal_local_shards(tmp_path, cluster, experts):
     local = generate_dataset(CFG, tmp_path / "local", *experts, progress=False)
     remote = generate_dataset(CFG, tmp_path / "ray", *experts, progress=False, backend="ray")
-    a, b = TensorDict.load_memmap(local / "data"), TensorDict.load_memmap(remote / "data")
+    a, b = load_memmap(local / "data"), load_memmap(remote / "data")
     assert a.shape == b.shape == (6, 10)
     assert (a == b).all()
     meta = json.loads((remote / "meta.json").read_text())
@@ -57,6 +58,6 @@ def test_a_killed_local_run_resumes_on_ray(tmp_path, cluster, experts, monkeypat
     generate_dataset(CFG, tmp_path / "run", *experts, progress=False, backend="ray",
                      max_in_flight=1)
     reference = generate_dataset(CFG, tmp_path / "ref", *experts, progress=False)
-    resumed = TensorDict.load_memmap(tmp_path / "run" / "data")
-    assert (resumed == TensorDict.load_memmap(reference / "data")).all()
+    resumed = load_memmap(tmp_path / "run" / "data")
+    assert (resumed == load_memmap(reference / "data")).all()
     assert sorted(resumed["episode"][:, 0].tolist()) == list(range(6))

@@ -36,6 +36,7 @@ from tqdm import tqdm
 from simdist.data.mixture import EpisodeMixture
 from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 from simdist.envs import DynamicsRandomisation, make_env
+from simdist.utils.memmap import CorruptDataError, folder_manifest, load_memmap
 
 _DROP_NEXT = ("observation", "state", "pixels", "dynamics", "perturbation", "mixture", "is_init")
 
@@ -270,11 +271,12 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
     config = json.loads(json.dumps(dataclasses.asdict(cfg), default=str))
     data = None
     if meta_path.exists():
-        meta = json.loads(meta_path.read_text())
+        meta = read_dataset_meta(out)
         if meta["config"] != config:
             raise ValueError(f"{out} holds a dataset generated with a different config; "
                              "use another directory or the same settings to resume")
-        data = TensorDict.load_memmap(out / "data")
+        # Pre-allocated at full size by the first shard: sizes are checked, never extended.
+        data = load_memmap(out / "data")
     else:
         out.mkdir(parents=True, exist_ok=True)
         if (out / "data").exists():  # a run killed before its first shard was recorded
@@ -301,10 +303,26 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
             _write_json_atomic(meta_path, meta)
             bar.update(1)
     bar.close()
-    meta.update(transitions=cfg.episodes * cfg.episode_steps,
-                bytes=sum(f.stat().st_size for f in (out / "data").rglob("*") if f.is_file()))
+    files = folder_manifest(out / "data")  # verified by load_dataset before any use
+    meta.update(transitions=cfg.episodes * cfg.episode_steps, files=files,
+                bytes=sum(f["bytes"] for f in files.values()))
     _write_json_atomic(meta_path, meta)
     return out
+
+
+def read_dataset_meta(path: str | Path) -> dict:
+    """A dataset's ``meta.json``, with an error naming the file if it is missing or corrupt."""
+    meta_path = Path(path) / "meta.json"
+    if not meta_path.is_file():
+        raise FileNotFoundError(f"{meta_path} does not exist: {path} is not a simdist dataset "
+                                "(generate one with recipes/generate_dataset.py)")
+    try:
+        meta = json.loads(meta_path.read_text())
+        meta["config"], meta["shards_done"]  # noqa: B018 - the keys every reader needs
+    except (ValueError, KeyError, TypeError) as err:
+        raise CorruptDataError(f"{meta_path} is corrupt ({err!r}); delete {path} and "
+                               "generate the dataset again") from err
+    return meta
 
 
 def load_dataset(path: str | Path, slice_len: int, batch_size: int) -> TensorDictReplayBuffer:
@@ -314,12 +332,16 @@ def load_dataset(path: str | Path, slice_len: int, batch_size: int) -> TensorDic
     ``SliceSampler`` keyed on ``"episode"``); samples come back as ``[batch, slice_len]``.
     """
     path = Path(path)
-    meta = json.loads((path / "meta.json").read_text())
+    meta = read_dataset_meta(path)
     cfg = meta["config"]
-    if len(meta["shards_done"]) != cfg["episodes"] // cfg["shard_episodes"]:
-        raise RuntimeError(f"{path} is incomplete ({len(meta['shards_done'])} shards done); "
-                           "rerun the generation command to finish it")
-    data = TensorDict.load_memmap(path / "data").reshape(-1)
+    if len(meta["shards_done"]) != cfg["episodes"] // cfg["shard_episodes"] or "files" not in meta:
+        raise RuntimeError(
+            f"{path} is incomplete ({len(meta['shards_done'])} of "
+            f"{cfg['episodes'] // cfg['shard_episodes']} shards done): finish it with "
+            f"generate_dataset(<same config>, {str(path)!r}) or `python "
+            f"recipes/generate_dataset.py` with the same flags and --out {path} (a recipe's "
+            "dataset stage does this when its stages/dataset.json record is deleted)")
+    data = load_memmap(path / "data", manifest=meta["files"]).reshape(-1)
     if batch_size % slice_len:
         raise ValueError("batch_size counts transitions: make it a multiple of slice_len")
     sampler = SliceSampler(slice_len=slice_len, traj_key="episode", strict_length=True)

@@ -7,8 +7,6 @@ pixel-Dreamer baselines: the same loop, a different agent and env.
 
 from __future__ import annotations
 
-import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,7 +16,7 @@ from tqdm import tqdm
 
 from simdist.pipelines.control import EpisodeReplay
 from simdist.pipelines.locomotion import rollout
-from simdist.utils import load_checkpoint, save_atomic
+from simdist.utils import load_checkpoint, load_memmap, save_atomic, save_memmap
 
 
 @dataclass
@@ -68,19 +66,11 @@ class OnlineConfig:
         return -(-self.prefill_steps // self.episode_steps)
 
 
-def _save_episode(episode: TensorDict, path: Path) -> None:
-    """Memory-maps an episode into a temporary folder, then renames it into place."""
-    tmp = path.with_name(path.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    episode.memmap(tmp)
-    os.replace(tmp, path)
-
-
 def load_episodes(stage_dir: str | Path) -> list[TensorDict]:
     """The episodes an online run stored (its dataset ``D``), in collection order."""
     folder = Path(stage_dir) / "episodes"
     paths = sorted(p for p in folder.iterdir() if not p.name.endswith(".tmp"))
-    return [TensorDict.load_memmap(p) for p in paths]
+    return [load_memmap(p) for p in paths]
 
 
 def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path,
@@ -122,8 +112,8 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
             with torch.no_grad():
                 policy = None if i < config.prefill_episodes else agent.policy(explore=True)
                 episode = rollout(env, policy, config.episode_steps)
-            _save_episode(episode.select(*keys), path)
-        episode = TensorDict.load_memmap(path).to_tensordict()
+            save_memmap(episode.select(*keys), path)
+        episode = load_memmap(path).to_tensordict()
         replay.add(episode)
         if i < trained:
             continue  # collected and trained on before the crash
