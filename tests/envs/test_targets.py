@@ -31,3 +31,17 @@ def test_describe_ranges_shows_every_preset():
     for name in TARGETS:
         assert name in table
     assert "0.6 - 1.4" in table  # default training friction range
+
+
+def test_a_dict_of_fields_is_a_target():
+    from simdist.envs import make_env
+
+    assert get_target({"friction": 0.3}) == TargetDomain(friction=0.3)
+    env = make_env("cartpole-balance", target={"friction": 0.3, "name": "icy"}, seed=0)
+    assert env.target == TargetDomain(name="icy", friction=0.3)
+    with pytest.raises(ValueError, match="unknown TargetDomain field\\(s\\) \\['frcition'\\]"):
+        get_target({"frcition": 0.3})
+    with pytest.raises(ValueError, match="friction must be finite and > 0"):
+        get_target({"friction": -1.0})
+    with pytest.raises(TypeError, match="preset name, a dict"):
+        get_target(0.3)

@@ -38,7 +38,8 @@ class SimDistEnv(EnvBase):
         camera_id: render camera (default: the task's).
         dynamics_randomisation: per-episode dynamics ranges, or ``None``.
         visual_randomisation: visual DR (needs ``pixels=True``), or ``None``.
-        target: a target-domain preset name or :class:`TargetDomain` (default: sim).
+        target: a target-domain preset name, a :class:`TargetDomain`, or a dict of its
+            fields (e.g. ``{"friction": 0.3}``) (default: sim).
         seed: seeds every random draw; equal seeds give identical rollouts.
         task_kwargs: task options (quadruped: ``speeds``, ``slope_deg``).
         max_episode_steps: truncation length in agent steps (default: the task's).
@@ -57,7 +58,7 @@ class SimDistEnv(EnvBase):
                  image_size: int = 64, camera_id: int | None = None,
                  dynamics_randomisation: DynamicsRandomisation | None = None,
                  visual_randomisation: VisualRandomisation | None = None,
-                 target: str | TargetDomain | None = None, seed: int = 0,
+                 target: str | TargetDomain | dict | None = None, seed: int = 0,
                  task_kwargs: dict | None = None, max_episode_steps: int | None = None,
                  device: str | torch.device = "cpu"):
         spec = get_task(task)

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
 
@@ -87,12 +89,28 @@ PRESETS: dict[str, TargetDomain] = {
 }
 
 
-def get_target(target: str | TargetDomain | None) -> TargetDomain:
-    """Resolves a preset name (or passes a :class:`TargetDomain` through)."""
+def get_target(target: str | TargetDomain | Mapping[str, Any] | None) -> TargetDomain:
+    """Resolves a preset name, a dict of :class:`TargetDomain` fields, or a ``TargetDomain``.
+
+    Examples:
+        >>> target = get_target({"friction": 0.3, "slope_deg": 5.0})
+        >>> target.name, target.friction, target.slope_deg
+        ('custom', 0.3, 5.0)
+    """
     if target is None:
         return SIM
     if isinstance(target, TargetDomain):
         return target
+    if isinstance(target, Mapping):
+        fields = {f.name for f in dataclasses.fields(TargetDomain)}
+        unknown = sorted(map(str, set(target) - fields))
+        if unknown:
+            raise ValueError(f"unknown TargetDomain field(s) {unknown} in target dict; valid: "
+                             f"{sorted(fields)}")
+        return TargetDomain(**target)
+    if not isinstance(target, str):
+        raise TypeError(f"target must be a preset name, a dict of TargetDomain fields or a "
+                        f"TargetDomain, got {type(target).__name__}")
     if target not in PRESETS:
         raise ValueError(f"unknown target domain {target!r}; valid presets: "
                          f"{', '.join(sorted(PRESETS))} (or pass a TargetDomain)")
