@@ -117,3 +117,15 @@ def test_imagined_alignment_zero_for_copy_and_reuses_posteriors():
     assert ("student", "belief") in td.keys(True)
     assert imagined(td)["loss_imagined"].item() == 0.0
     assert imagined(_batch())["loss_imagined"].item() == 0.0  # filters on its own too
+
+
+def test_student_float_pixels_in_0_255_are_refused():
+    import pytest
+
+    torch.manual_seed(0)
+    teacher = DreamerWorldModel.teacher(state_dim=4, action_dim=2, size="tiny")
+    student = DreamerWorldModel.student(action_dim=2, size="tiny")
+    td = linear_system_batch(batch=2, time=3, obs_dim=4)
+    td["next", "pixels"] = torch.randint(0, 256, (2, 3, 64, 64, 3)).float()
+    with pytest.raises(ValueError, match="TwistDistillationLoss: float \\('next', 'pixels'\\)"):
+        TwistDistillationLoss(teacher, student)(td)

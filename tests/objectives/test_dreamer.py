@@ -136,3 +136,30 @@ def test_pixel_dreamer_reconstruction_uses_normalised_uint8_pixels():
     prediction = wm.decode(DreamerWorldModel.features(states))
     expected = 0.5 * (prediction - target).pow(2).sum((-3, -2, -1)).mean()
     torch.testing.assert_close(out["loss_reconstruction"], expected)
+
+
+def test_reward_without_the_trailing_one_is_a_clear_error():
+    loss = DreamerWorldModelLoss(_teacher())
+    td = linear_system_batch(batch=2, time=4, obs_dim=4)
+    td["next", "reward"] = td["next", "reward"].squeeze(-1)
+    with pytest.raises(ValueError, match="\\('next', 'reward'\\) must have shape \\(2, 4, 1\\).*"
+                                         "got \\(2, 4\\): add the trailing 1"):
+        loss(td)
+
+
+@pytest.mark.parametrize("scale", ["0-255", "0-1"])
+def test_float_pixels_outside_the_models_units_are_refused(scale):
+    torch.manual_seed(0)
+    wm = DreamerWorldModel.pixel_dreamer(action_dim=2, size="tiny")
+    td = linear_system_batch(batch=2, time=3, obs_dim=4)
+    images = torch.randint(0, 256, (2, 3, 64, 64, 3), dtype=torch.uint8)
+    td["next", "pixels"] = images.float() if scale == "0-255" else images.float() / 255
+    loss = DreamerWorldModelLoss(wm)
+    loss.set_keys(observation=("next", "pixels"))
+    with pytest.raises(ValueError, match="float \\('next', 'pixels'\\) must lie in \\[-0.5, 0.5\\]"):
+        loss(td)
+    td["next", "pixels"] = images.float() / 255 - 0.5  # the models' own units: accepted
+    loss(td)
+    td["next", "pixels"] = images.long()
+    with pytest.raises(TypeError, match="must be uint8 images"):
+        loss(td)

@@ -71,6 +71,24 @@ class SimdistLoss(LossModule):
             raise ValueError(f"{type(self).__name__}: {key!r} contains NaN or inf")
         return value
 
+    def read_scalar(self, td: TensorDictBase, name: str, lead) -> torch.Tensor:
+        """A per-step scalar (reward, value target) of shape ``[*lead, 1]``.
+
+        Without this check a ``[B, T]`` reward broadcasts against ``[B, T, 1]``
+        predictions into a ``[B, T, T]`` error: a wrong loss, or an anonymous shape error.
+        """
+        value = self.read(td, name)
+        check_per_step_scalar(type(self).__name__, getattr(self.tensor_keys, name), value, lead)
+        return value
+
+    def read_pixels(self, td: TensorDictBase, name: str) -> torch.Tensor:
+        """Images: uint8 in ``[0, 255]``, or float already in ``[-0.5, 0.5]`` (see
+        :func:`check_pixels`; the range check is skipped with ``check_inputs=False``)."""
+        value = self.read(td, name)
+        check_pixels(type(self).__name__, getattr(self.tensor_keys, name), value,
+                     check_range=self.check_inputs)
+        return value
+
     def read_flag(self, td: TensorDictBase, name: str, shape) -> torch.Tensor:
         """A boolean ``[B, T]`` flag (accepts a trailing singleton dimension)."""
         value = self.read(td, name)
@@ -93,3 +111,60 @@ def sequence_batch(td: TensorDictBase) -> tuple[int, int]:
         raise ValueError(f"expected a [batch, time] TensorDict of slices, got batch_size "
                          f"{tuple(td.batch_size)} (sample with a SliceSampler and reshape)")
     return tuple(td.batch_size)
+
+
+def check_per_step_scalar(owner: str, key, value: torch.Tensor, lead) -> None:
+    """Raises unless ``value`` is ``[*lead, 1]``: one scalar per step, with the trailing 1.
+
+    Examples:
+        >>> check_per_step_scalar("MyLoss", "reward", torch.zeros(2, 5), (2, 5))
+        ... # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: MyLoss: 'reward' must have shape (2, 5, 1) ..., got (2, 5): add the ...
+    """
+    lead = tuple(lead)
+    if tuple(value.shape) == (*lead, 1):
+        return
+    hint = ""
+    if tuple(value.shape) == lead:
+        name = key[-1] if isinstance(key, tuple) else key
+        hint = f": add the trailing 1 ({name}.unsqueeze(-1)); TorchRL envs write it"
+    raise ValueError(f"{owner}: {key!r} must have shape {(*lead, 1)} (one scalar per step), "
+                     f"got {tuple(value.shape)}{hint}")
+
+
+def check_pixels(owner: str, key, pixels: torch.Tensor, check_range: bool = True) -> None:
+    """Raises unless ``pixels`` follow the encoders' convention.
+
+    ``uint8`` images in ``[0, 255]`` (what the envs render) are scaled by the models; a
+    floating-point image is taken as already scaled to ``[-0.5, 0.5]``
+    (:func:`~simdist.modules.heads.pixels_to_target`), so a float image in ``[0, 255]``
+    or ``[0, 1]`` would be fed unscaled or shifted. Other integer types are refused for the
+    same reason. ``check_range`` (one host sync) can be turned off for speed.
+
+    Examples:
+        >>> check_pixels("MyLoss", "pixels", torch.zeros(2, 8, 8, 3, dtype=torch.uint8))
+        >>> check_pixels("MyLoss", "pixels", torch.full((2, 8, 8, 3), 255.0))
+        ... # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: MyLoss: float 'pixels' must lie in [-0.5, 0.5] ..., got values in [255, 255]...
+    """
+    if pixels.dtype == torch.uint8:
+        return
+    if not pixels.is_floating_point():
+        raise TypeError(f"{owner}: {key!r} must be uint8 images (or floats in [-0.5, 0.5]), "
+                        f"got {pixels.dtype}")
+    if not check_range or pixels.numel() == 0:
+        return
+    low, high = torch.aminmax(pixels.detach())
+    low, high = low.item(), high.item()
+    if low < -0.5 - _PIXEL_SLACK or high > 0.5 + _PIXEL_SLACK:
+        raise ValueError(f"{owner}: float {key!r} must lie in [-0.5, 0.5] (uint8 / 255 - 0.5), "
+                         f"got values in [{low:g}, {high:g}]; pass the uint8 images, or scale "
+                         "them with simdist.modules.heads.pixels_to_target")
+
+
+# Rounding slack for float images computed as uint8 / 255 - 0.5 (and then e.g. resized).
+_PIXEL_SLACK = 1e-3

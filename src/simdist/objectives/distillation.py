@@ -8,6 +8,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
+from simdist.modules.encoders import PixelEncoder
 from simdist.modules.world_model import DreamerWorldModel
 from simdist.objectives.common import SimdistLoss, sequence_batch
 
@@ -76,8 +77,10 @@ class TwistDistillationLoss(SimdistLoss):
         with torch.no_grad():
             teacher = self.teacher.observe(self.read(td, "teacher_observation"), action,
                                            is_init, noise=noise)
-        student = self.student.observe(self.read(td, "student_observation"), action, is_init,
-                                       noise=noise)
+        observation = (self.read_pixels(td, "student_observation")
+                       if isinstance(self.student.encoder, PixelEncoder)
+                       else self.read(td, "student_observation"))
+        student = self.student.observe(observation, action, is_init, noise=noise)
         return teacher, student
 
     def forward(self, td: TensorDictBase) -> TensorDict:

@@ -17,6 +17,7 @@ from tensordict.utils import NestedKey
 from torchrl.objectives.utils import hold_out_net
 from torchrl.objectives.value.functional import td_lambda_return_estimate
 
+from simdist.modules.encoders import PixelEncoder
 from simdist.modules.heads import pixels_to_target
 from simdist.modules.rssm import RSSMState
 from simdist.modules.world_model import DreamerWorldModel
@@ -80,7 +81,10 @@ class DreamerWorldModelLoss(SimdistLoss):
 
     def forward(self, td: TensorDictBase) -> TensorDict:
         B, T = sequence_batch(td)
-        obs = self.read(td, "observation")
+        # Images must follow the encoder's convention (uint8, or floats in [-0.5, 0.5]).
+        obs = (self.read_pixels(td, "observation")
+               if isinstance(self.world_model.encoder, PixelEncoder)
+               else self.read(td, "observation"))
         out = self.world_model.observe(obs, self.read(td, "action"),
                                        self.read_flag(td, "is_init", (B, T)))
         features = DreamerWorldModel.features(out)
@@ -88,7 +92,8 @@ class DreamerWorldModelLoss(SimdistLoss):
         target = pixels_to_target(obs) if obs.dtype == torch.uint8 else obs
         event_dims = tuple(range(2, target.dim()))
         recon = 0.5 * (prediction - target).pow(2).sum(event_dims).mean()
-        reward = 0.5 * (self.world_model.reward(features) - self.read(td, "reward")).pow(2).mean()
+        reward_t = self.read_scalar(td, "reward", (B, T))
+        reward = 0.5 * (self.world_model.reward(features) - reward_t).pow(2).mean()
         rssm = self.world_model.rssm
         kl = balanced_kl(rssm, out["posterior_logits"], out["prior_logits"], self.kl_balance,
                          self.free_nats).mean()
