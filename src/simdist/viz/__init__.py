@@ -2,7 +2,7 @@
 
 from simdist.viz.episode import QUADRUPED_BODIES, record_planning_episode
 from simdist.viz.kinematics import BodyPositions, decode_plans
-from simdist.viz.rerun_log import PlanningRecorder, entity_paths
+from simdist.viz.rerun_log import PlanningRecorder, entity_paths, spawn_viewer
 
 __all__ = ["BodyPositions", "decode_plans", "PlanningRecorder", "entity_paths",
-           "QUADRUPED_BODIES", "record_planning_episode"]
+           "QUADRUPED_BODIES", "record_planning_episode", "spawn_viewer"]

@@ -1,10 +1,13 @@
 """rerun-sdk recordings of planning episodes: robot, plans in 3-D, executed path, traces.
 
 Headless by default: a recording goes to an ``.rrd`` file that the rerun viewer opens
-(``rerun file.rrd``). ``spawn=True`` also starts a local viewer process.
+(``rerun file.rrd``). ``spawn=True`` also starts a local viewer process, listening on
+localhost only (see :func:`spawn_viewer`).
 """
 
 from __future__ import annotations
+
+import os
 
 import mujoco
 import numpy as np
@@ -23,7 +26,13 @@ class PlanningRecorder:
     Args:
         path: ``.rrd`` file to write (``None``: no file, e.g. with ``spawn``).
         application_id: rerun application id.
-        spawn: also start a local rerun viewer.
+        spawn: also start a local rerun viewer and stream to it.
+        port: the spawned viewer's gRPC port (rerun's default, 9876).
+        bind: the address the spawned viewer listens on. ``rerun.spawn()`` (rerun-sdk
+            0.41) starts ``rerun --port 9876`` whose ``--bind`` defaults to ``0.0.0.0``:
+            every network interface, so anyone who can reach the machine could stream
+            into the viewer or read the recording. Here the default is ``127.0.0.1``
+            (this machine only); widen it (``"0.0.0.0"``) only on a trusted network.
 
     Examples:
         >>> import tempfile, os
@@ -34,12 +43,13 @@ class PlanningRecorder:
         True
     """
 
-    def __init__(self, path: str | None, application_id: str = "simdist", spawn: bool = False):
+    def __init__(self, path: str | None, application_id: str = "simdist", spawn: bool = False,
+                 port: int = 9876, bind: str = "127.0.0.1"):
         self.stream = rr.RecordingStream(application_id)
         if path is not None:
             self.stream.save(path)
         if spawn:
-            self.stream.spawn()
+            spawn_viewer(self.stream, port=port, bind=bind)
         self.path = path
         self._executed: dict[str, list] = {}
 
@@ -87,6 +97,44 @@ class PlanningRecorder:
     def close(self) -> None:
         self.stream.flush()
         self.stream.disconnect()
+
+
+def spawn_viewer(stream: rr.RecordingStream | None = None, port: int = 9876,
+                 bind: str = "127.0.0.1", memory_limit: str = "75%", headless: bool = False,
+                 detach_process: bool = True) -> int | None:
+    """Starts a rerun viewer listening on ``bind:port`` and connects ``stream`` to it.
+
+    ``rerun.spawn()`` cannot choose the address, and the viewer it starts listens on
+    ``0.0.0.0`` (all interfaces); this passes ``--bind`` to the same executable instead,
+    so by default nothing is reachable from beyond this machine. Blocks until the viewer
+    accepts connections.
+
+    Args:
+        stream: recording to stream to the viewer (``None``: only start it).
+        port: gRPC port.
+        bind: listening address (``"127.0.0.1"``: this machine only).
+        memory_limit: the viewer's memory limit (rerun syntax, e.g. ``"75%"``, ``"4GB"``).
+        headless: no window (the viewer still serves connections).
+        detach_process: let the viewer outlive this process.
+
+    Returns:
+        The viewer's pid (``None`` where rerun skips spawning, e.g. under its test mode).
+    """
+    import rerun_bindings
+
+    if os.environ.get("_RERUN_TEST_FORCE_SAVE") is not None:  # as rerun.spawn does
+        return None
+    kwargs = {"headless": True} if headless else {}  # older rerun-sdk lacks the argument
+    pid = rerun_bindings.spawn(
+        port=port, memory_limit=memory_limit, detach_process=detach_process,
+        executable_name="rerun", extra_args=["--bind", bind],
+        # Tells the viewer it is an app started by an SDK (as rerun.spawn does).
+        extra_env=[("RERUN_APP_ONLY", "true")], **kwargs)
+    if stream is not None:
+        host = "127.0.0.1" if bind in ("0.0.0.0", "::", "127.0.0.1") else bind
+        host = f"[{host}]" if ":" in host else host
+        stream.connect_grpc(f"rerun+http://{host}:{port}/proxy")
+    return pid
 
 
 def entity_paths(path: str) -> list[str]:
