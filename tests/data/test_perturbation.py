@@ -62,6 +62,40 @@ def test_burst_pause_lengths_std_range_and_never_fraction_match_the_schedule():
     assert (actions[torch.from_numpy(~noisy)] == 0).all()  # pauses: the expert's action
 
 
+def test_noised_fraction_is_the_steady_state_from_the_first_step():
+    # Reference defaults: E[burst] 25.5, E[pause] 262.5 -> 8.85% x (1 - 0.025) = 8.63%.
+    schedule = PerturbationSchedule()
+    assert abs(schedule.noised_fraction() - 25.5 / 288 * 0.975) < 1e-12
+    noisy, _, _ = _simulate(schedule, envs=4000, steps=250, seed=0)
+    per_step = noisy.mean(0)
+    print(f"noised fraction {noisy.mean():.4f} (configured {schedule.noised_fraction():.4f}); "
+          f"first 10 steps {per_step[:10].mean():.4f}, last 50 {per_step[-50:].mean():.4f}")
+    # 1M draws, but bursts correlate steps: compare with a few-sd tolerance
+    assert abs(noisy.mean() - schedule.noised_fraction()) < 0.006
+    # no warm-up: the first steps are noised as often as any others
+    assert abs(per_step[:10].mean() - schedule.noised_fraction()) < 0.012
+    assert abs(per_step[-50:].mean() - schedule.noised_fraction()) < 0.012
+    # episodes of 250 steps that are never noised: ~ never_noised + P(in one long pause)
+    assert (~noisy.any(1)).mean() < 0.5
+
+
+def test_perturbed_actions_stay_inside_per_joint_bounds():
+    low, high = torch.tensor([-1.0, -1.0, -0.8]), torch.tensor([1.0, 1.1, 0.8])
+    module = ActionPerturbation(3, PerturbationSchedule(std_range=(2.0, 2.5), burst_range=(5, 5),
+                                                        pause_range=(1, 1)),
+                                seed=0, action_low=low, action_high=high)
+    td = TensorDict({"action": torch.zeros(2000, 3),
+                     "is_init": torch.ones(2000, 1, dtype=torch.bool)}, [2000])
+    out = module(td)
+    applied = out["action"][~out["expert_active"][:, 0]]
+    assert len(applied) > 500
+    assert (applied >= low).all() and (applied <= high).all()
+    # the bounds are reached on every joint: the clamp, not the noise, limits the action
+    assert torch.allclose(applied.max(0).values, high) and torch.allclose(applied.min(0).values, low)
+    with pytest.raises(ValueError, match="low < high"):
+        ActionPerturbation(2, action_low=torch.ones(2), action_high=torch.zeros(2))
+
+
 def test_new_episode_redraws_the_schedule():
     module = ActionPerturbation(2, seed=1)
     td = TensorDict({"action": torch.zeros(64, 2), "is_init": torch.ones(64, 1, dtype=torch.bool)}, [64])

@@ -29,16 +29,27 @@ def test_pretrain_terms_equal_hand_computation():
         val.append((wm.value(zi) - td["value_target"][:, t]) ** 2)
         for i in range(2):
             zi = wm.next(zi, act[:, t + i])
-            cons.append(((zi - z[:, t + i + 1]) ** 2).mean(-1))
+            cons.append(((zi - z[:, t + i + 1]) ** 2).sum(-1))  # summed over latent dims
             if i < 1:
                 rew.append((wm.reward(zi, act[:, t + i + 1]) - td["next", "reward"][:, t + i + 1]) ** 2)
-                val.append((wm.value(zi) - td["value_target"][:, t + i + 1]) ** 2)
+            # the value is regressed up to z^_{t+H}, where the planner reads it
+            val.append((wm.value(zi) - td["value_target"][:, t + i + 1]) ** 2)
     expert = td["expert_active"].squeeze(-1)
     bc = ((wm.policy(z) - act) ** 2).mean(-1)[expert].mean()
     torch.testing.assert_close(out["loss_consistency"], torch.stack(cons).mean())
     torch.testing.assert_close(out["loss_reward"], torch.stack(rew).mean())
     torch.testing.assert_close(out["loss_value"], torch.stack(val).mean())
     torch.testing.assert_close(out["loss_bc"], 4.0 * bc)
+
+
+def test_value_head_is_trained_at_the_planning_horizon():
+    # Only the label at t + H differs: the value loss must change (it reaches z^_{t+H}).
+    wm = _model()
+    td = linear_system_batch(batch=2, time=4, obs_dim=4)
+    loss = SimDistPretrainLoss(wm, horizon=3)
+    before = loss(td)["loss_value"]
+    td["value_target"][:, 3] += 1000.0
+    assert loss(td)["loss_value"] > before + 1000.0
 
 
 def test_rollouts_never_target_across_an_episode_start():

@@ -150,7 +150,14 @@ def _label_shard(cfg: DatasetConfig, shard: int, td: TensorDict, expert) -> Tens
     td = td.reshape(cfg.shard_episodes, cfg.episode_steps)  # [workers, n, T] -> [E, T]
     with torch.no_grad():
         td.set("value_target", expert.value(td.reshape(-1)).reshape(*td.shape, 1))
-    td.set("policy_index", td.get(("mixture", "policy")))
+    # The policy that acted at step t is the mixture's output there; its input
+    # ("mixture", "policy") is the previous step's, i.e. the primer's 0 at an episode start.
+    policy = td.get(("next", "mixture", "policy"))
+    td.set("policy_index", policy)
+    # The BC prior imitates the final expert's own actions only: "not noised" alone would
+    # also make it imitate the earlier, weaker snapshots that act in some episodes.
+    td.set("noised", ~td.get("expert_active"))
+    td.set("expert_active", td.get("expert_active") & (policy.reshape(td.get("expert_active").shape) == 0))
     for key in ("truncated", "done"):  # the episode ends with the batch (make_generation_env)
         td.get(("next", key))[:, -1] = True
     td = td.exclude("collector", "mixture", "perturbation", *[("next", k) for k in _DROP_NEXT])
@@ -181,7 +188,11 @@ def collect_shards(cfg: DatasetConfig, shards, expert, snapshots=()):
         [cfg.final_expert_probability]
         + [(1 - cfg.final_expert_probability) / len(snapshots)] * len(snapshots))
     mixture = EpisodeMixture(policies, probs)
-    perturb = ActionPerturbation(env.action_spec.shape[-1], cfg.schedule)
+    # Clamp to the robot's per-joint bounds: the data then records what MuJoCo applied.
+    bounds = env.action_spec.space
+    perturb = ActionPerturbation(env.action_spec.shape[-1], cfg.schedule,
+                                 action_low=bounds.low.reshape(-1, bounds.low.shape[-1])[0],
+                                 action_high=bounds.high.reshape(-1, bounds.high.shape[-1])[0])
     env.append_transform(mixture.make_primer())
     env.append_transform(perturb.make_primer())
     seeder = _ShardSeeder(cfg, shards, env, [mixture.generator, perturb.generator])

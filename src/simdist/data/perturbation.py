@@ -2,7 +2,11 @@
 
 Per environment and episode: a noise std per joint drawn from ``std_range``; noise is ON
 for bursts of ``burst_range`` steps, then OFF for ``pause_range`` steps, repeating; a
-``never_noised_fraction`` of episodes is never perturbed. The schedule's state lives in
+``never_noised_fraction`` of episodes is never perturbed. Each episode starts at a random
+point of the burst/pause cycle drawn from the cycle's stationary distribution, so the
+noised fraction is the schedule's steady state (:meth:`PerturbationSchedule.noised_fraction`)
+from the first step on: starting every episode with a full pause would leave most short
+episodes unperturbed. The schedule's state lives in
 the TensorDict (``("perturbation", ...)`` keys, written to ``("next", ...)`` and carried
 by TorchRL's ``step_mdp`` like an RNN policy's hidden state), so the module itself holds
 only its random generator: use one seed per worker (e.g. through a collector's
@@ -37,6 +41,8 @@ class PerturbationSchedule:
     """
 
     std_range: tuple[float, float] = (0.05, 2.5)
+    # ``action_low``/``action_high`` bound the perturbed action when the module is given
+    # no per-joint bounds (pass the env's action spec to ActionPerturbation instead).
     burst_range: tuple[int, int] = (1, 50)
     pause_range: tuple[int, int] = (25, 500)
     never_noised_fraction: float = 0.025
@@ -56,13 +62,30 @@ class PerturbationSchedule:
         if not self.action_low < self.action_high:
             raise ValueError("action_low must be < action_high")
 
+    def burst_probability(self) -> float:
+        """Long-run fraction of steps inside a burst: ``E[burst] / (E[burst] + E[pause])``.
+
+        Examples:
+            >>> round(PerturbationSchedule(burst_range=(1, 3), pause_range=(8, 8)).burst_probability(), 3)
+            0.2
+        """
+        burst, pause = sum(self.burst_range) / 2, sum(self.pause_range) / 2
+        return burst / (burst + pause)
+
+    def noised_fraction(self) -> float:
+        """Expected fraction of noised steps at any step of an episode (steady state)."""
+        return self.burst_probability() * (1.0 - self.never_noised_fraction)
+
 
 class ActionPerturbation(TensorDictModuleBase):
     """Perturbs ``action`` by the schedule and records ``expert_active``.
 
     Place it after the expert in a ``TensorDictSequential``; add :meth:`make_primer` and
     ``InitTracker()`` to the env (the schedule restarts where ``is_init`` is set).
-    ``expert_active`` is ``True`` where the applied action is the expert's own.
+    ``expert_active`` is ``True`` where the applied action is the expert's own. The applied
+    (and recorded) action is clamped to ``action_low``/``action_high``: pass the env's
+    per-joint bounds (``env.action_spec.space.low/high``) so the data holds what the robot
+    executed; without them the schedule's scalar bounds apply.
 
     Examples:
         >>> from tensordict import TensorDict
@@ -75,9 +98,23 @@ class ActionPerturbation(TensorDictModuleBase):
     """
 
     def __init__(self, action_dim: int, schedule: PerturbationSchedule = PerturbationSchedule(),
-                 seed: int = 0, action_key="action", is_init_key="is_init"):
+                 seed: int = 0, action_key="action", is_init_key="is_init",
+                 action_low=None, action_high=None):
         super().__init__()
         self.schedule, self.action_dim = schedule, int(action_dim)
+        low = torch.as_tensor(schedule.action_low if action_low is None else action_low,
+                              dtype=torch.float32).expand(self.action_dim).clone()
+        high = torch.as_tensor(schedule.action_high if action_high is None else action_high,
+                               dtype=torch.float32).expand(self.action_dim).clone()
+        if not (torch.isfinite(low).all() and torch.isfinite(high).all() and (low < high).all()):
+            raise ValueError(f"action bounds must be finite with low < high, got {low}, {high}")
+        self.register_buffer("action_low", low)
+        self.register_buffer("action_high", high)
+        # Stationary start of the cycle: a phase of length l is entered with probability
+        # proportional to l (length-biased), then we land uniformly inside it.
+        burst = torch.arange(int(schedule.burst_range[0]), int(schedule.burst_range[1]) + 1)
+        pause = torch.arange(int(schedule.pause_range[0]), int(schedule.pause_range[1]) + 1)
+        self._burst_lengths, self._pause_lengths = burst, pause
         self.action_key, self.is_init_key = action_key, is_init_key
         state = [("perturbation", k) for k in STATE_KEYS]
         self.in_keys = [action_key, is_init_key, *state]
@@ -102,6 +139,14 @@ class ActionPerturbation(TensorDictModuleBase):
         low, high = int(bounds[0]), int(bounds[1])
         return torch.randint(low, high + 1, shape, generator=self.generator).to(device)
 
+    def _residual(self, shape, lengths, device):
+        """Steps left in a phase entered at a uniformly random time (length-biased)."""
+        n = math.prod(shape)
+        picked = lengths[torch.multinomial(lengths.float(), n, replacement=True,
+                                           generator=self.generator)]
+        left = (torch.rand(n, generator=self.generator) * picked).long() + 1  # 1..length
+        return left.reshape(shape).to(device)
+
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         s = self.schedule
         action = td.get(self.action_key, None)
@@ -124,12 +169,16 @@ class ActionPerturbation(TensorDictModuleBase):
         on = state("noise_on", torch.zeros(flag_shape, dtype=torch.bool, device=dev))
         remaining = state("remaining", torch.zeros(flag_shape, dtype=torch.int64, device=dev))
         never = state("never", torch.zeros(flag_shape, dtype=torch.bool, device=dev))
-        # Episode start: new per-joint stds, never-noised draw, begin with a pause.
+        # Episode start: new per-joint stds, never-noised draw, and a random point of the
+        # burst/pause cycle (its stationary distribution: see the module docstring).
         std = torch.where(is_init, self._uniform(std.shape, *s.std_range, dev), std)
         never = torch.where(is_init, self._uniform(flag_shape, 0.0, 1.0, dev)
                             < s.never_noised_fraction, never)
-        on = on & ~is_init
-        remaining = torch.where(is_init, self._steps(flag_shape, s.pause_range, dev), remaining)
+        start_on = self._uniform(flag_shape, 0.0, 1.0, dev) < s.burst_probability()
+        start_left = torch.where(start_on, self._residual(flag_shape, self._burst_lengths, dev),
+                                 self._residual(flag_shape, self._pause_lengths, dev))
+        on = torch.where(is_init, start_on, on)
+        remaining = torch.where(is_init, start_left, remaining)
         # Phase change when the current phase is used up.
         flip = remaining <= 0
         on = torch.where(flip, ~on, on)
@@ -138,7 +187,8 @@ class ActionPerturbation(TensorDictModuleBase):
         remaining = torch.where(flip, fresh, remaining) - 1
         noisy = on & ~never
         eps = torch.randn(action.shape, generator=self.generator).to(dev)
-        applied = torch.where(noisy, action + std * eps, action).clamp(s.action_low, s.action_high)
+        low, high = self.action_low.to(dev), self.action_high.to(dev)
+        applied = torch.where(noisy, action + std * eps, action).clamp(low, high)
         td.set(self.action_key, applied)
         td.set("expert_active", ~noisy)
         for key, value in zip(STATE_KEYS, (std, on, remaining, never)):

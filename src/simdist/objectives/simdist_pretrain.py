@@ -60,12 +60,17 @@ class SimDistPretrainLoss(SimdistLoss):
     For every start ``t`` of a ``[B, T]`` slice: ``z_t = enc(o_{t-k+1..t})``, predicted
     ``z^_{t+i} = dyn(z^_{t+i-1}, a_{t+i-1})`` for ``i = 1..H``;
 
-    - ``loss_consistency = mean_i ||z^_{t+i} - sg(enc(o_{t+i}))||^2`` (same encoder, no EMA);
+    - ``loss_consistency = mean_i ||z^_{t+i} - sg(enc(o_{t+i}))||^2`` (same encoder, no EMA),
+      the squared error **summed** over latent dimensions: SimNorm latents are small per
+      dimension (each group sums to 1), and a mean over 64 of them made this term ~0.005
+      against BC ~1.6, too small to keep the latent predictive;
     - ``loss_reward = mean_i (r(z^_{t+i}, a_{t+i}) - r_{t+i})^2`` for ``i = 0..H-1``
       (``z^_t = z_t``) on recorded rewards, so rewards are right on predicted latents;
-    - ``loss_value = mean_i (V(z^_{t+i}) - v_{t+i})^2`` on the expert critic's labels
-      (plain regression, no bootstrapping);
-    - ``loss_bc = mean_t ||pi(z_t) - a_t||^2`` on steps where the expert acted.
+    - ``loss_value = mean_i (V(z^_{t+i}) - v_{t+i})^2`` for ``i = 0..H`` on the expert
+      critic's labels (plain regression, no bootstrapping), up to ``z^_{t+H}``: the latent
+      the planner's terminal value is read at;
+    - ``loss_bc = mean_t ||pi(z_t) - a_t||^2`` on steps marked ``expert_active`` (the
+      datasets mark the final expert's own, unperturbed actions).
 
     Targets after an episode start inside the horizon are masked out. Reference weights:
     latent 1, reward 1, value 1, action 4.
@@ -113,15 +118,17 @@ class SimDistPretrainLoss(SimdistLoss):
         latents = wm.encode_sequence(self.read(td, "observation"), is_init)
         predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
         S = T - H
-        consistency = masked_mean((predicted - targets.detach()).pow(2).mean(-1), mask)
-        # Reward and value on z^_{t+i}, i = 0..H-1: the start latent then the predictions.
-        path = torch.cat([latents[:, :S, None], predicted[:, :, :-1]], 2)      # [B, S, H, L]
+        consistency = masked_mean((predicted - targets.detach()).pow(2).sum(-1), mask)
+        # z^_{t+i}, i = 0..H: the start latent then the predictions. Reward on i < H (each
+        # with its action), value on every i: the planner reads the value at z^_{t+H}.
+        path = torch.cat([latents[:, :S, None], predicted], 2)                 # [B, S, H+1, L]
         start_ok = complete_windows(is_init, wm.encoder.history)[:, :S, None].to(mask.dtype)
-        path_mask = torch.cat([start_ok, mask[..., :-1]], -1)
+        path_mask = torch.cat([start_ok, mask], -1)                            # [B, S, H+1]
         act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)
         reward_t = self.read(td, "reward").unfold(1, H, 1)[:, :S].transpose(-1, -2)
-        value_t = self.read(td, "value_target").unfold(1, H, 1)[:, :S].transpose(-1, -2)
-        reward = masked_mean((wm.reward(path, act) - reward_t).pow(2).squeeze(-1), path_mask)
+        value_t = self.read(td, "value_target").unfold(1, H + 1, 1)[:, :S].transpose(-1, -2)
+        reward = masked_mean((wm.reward(path[:, :, :-1], act) - reward_t).pow(2).squeeze(-1),
+                             path_mask[..., :-1])
         value = masked_mean((wm.value(path) - value_t).pow(2).squeeze(-1), path_mask)
         expert = self.read_flag(td, "expert_active", (B, T)).to(latents.dtype)
         expert = expert * complete_windows(is_init, wm.encoder.history).to(latents.dtype)
@@ -138,6 +145,9 @@ class SimDistPretrainLoss(SimdistLoss):
 
 class DynamicsFinetuneLoss(SimdistLoss):
     """SimDist finetuning: latent consistency on target data, training **only** dynamics.
+
+    The consistency term is :class:`SimDistPretrainLoss`'s (squared error summed over
+    latent dimensions, averaged over starts and horizon steps).
 
     The encoder runs under ``torch.no_grad`` and no head is evaluated, so encoder, reward,
     value and policy parameters can never receive a gradient; :meth:`trainable_parameters`
@@ -186,7 +196,7 @@ class DynamicsFinetuneLoss(SimdistLoss):
         with torch.set_grad_enabled(not freeze_encoder):  # frozen: the encoder builds no graph
             latents = wm.encode_sequence(self.read(td, "observation"), is_init)
         predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
-        consistency = masked_mean((predicted - targets.detach()).pow(2).mean(-1), mask)
+        consistency = masked_mean((predicted - targets.detach()).pow(2).sum(-1), mask)
         with torch.no_grad():
             S = T - H
             act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
