@@ -62,3 +62,12 @@ def test_the_real_viewer_reports_listening_on_localhost(capfd):
     if not lines:
         pytest.skip("this rerun version logs no listening address")
     assert f"127.0.0.1:{port}" in lines[0] and "0.0.0.0" not in lines[0]
+
+
+def test_a_recording_appears_under_its_name_only_when_complete(tmp_path):
+    path = tmp_path / "episode.rrd"
+    recorder = PlanningRecorder(str(path))
+    recorder.log_scalars(0, predicted_reward=1.0)
+    assert not path.exists()  # a crash now leaves no truncated episode.rrd
+    recorder.close()
+    assert path.stat().st_size > 0 and [p.name for p in tmp_path.iterdir()] == ["episode.rrd"]

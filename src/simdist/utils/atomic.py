@@ -29,13 +29,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         ('done', ['notes.txt'])
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # Hidden, unique temp names: two writers never share one, and globs over the folder
-    # (e.g. "*.json") do not pick up a half-written file.
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
-                               suffix=f".tmp{path.suffix}")
-    os.close(fd)
-    tmp = Path(tmp)
+    tmp = temp_path_beside(path)
     try:
         yield tmp
         # fsync before the rename: otherwise a power cut can leave the new name pointing
@@ -46,6 +40,27 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def temp_path_beside(path: str | os.PathLike) -> Path:
+    """A new, empty, hidden temp file in ``path``'s folder (created if missing).
+
+    Hidden and unique: two writers never share one, globs over the folder (``*.json``) do
+    not pick up a half-written file, and it keeps ``path``'s suffix for writers that pick
+    a format from it. ``os.replace`` it over ``path`` once complete.
+
+    Examples:
+        >>> import tempfile
+        >>> tmp = temp_path_beside(Path(tempfile.mkdtemp()) / "plot.png")
+        >>> tmp.name.startswith(".plot.png."), tmp.suffix, tmp.stat().st_size
+        (True, '.png', 0)
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
+                               suffix=f".tmp{path.suffix}")
+    os.close(fd)
+    return Path(tmp)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:

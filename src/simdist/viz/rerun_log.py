@@ -13,9 +13,14 @@ import mujoco
 import numpy as np
 import rerun as rr
 
+from simdist.utils.atomic import temp_path_beside
+
 
 class PlanningRecorder:
     """Logs one control step at a time to a rerun recording.
+
+    The recording is written to a hidden temp file beside ``path`` and renamed to
+    ``path`` by :meth:`close`, so ``path`` only ever holds a complete recording.
 
     Entity paths: ``world/robot/geoms`` (MuJoCo geoms as points sized by the geom),
     ``world/robot/<body>`` (key bodies), ``world/plan/<body>`` (the chosen plan, one line
@@ -46,8 +51,11 @@ class PlanningRecorder:
     def __init__(self, path: str | None, application_id: str = "simdist", spawn: bool = False,
                  port: int = 9876, bind: str = "127.0.0.1"):
         self.stream = rr.RecordingStream(application_id)
-        if path is not None:
-            self.stream.save(path)
+        # Record into a hidden temp file renamed over ``path`` by close(): a crash never
+        # leaves a truncated recording under the final name.
+        self._partial = temp_path_beside(path) if path is not None else None
+        if self._partial is not None:
+            self.stream.save(str(self._partial))
         if spawn:
             spawn_viewer(self.stream, port=port, bind=bind)
         self.path = path
@@ -95,8 +103,12 @@ class PlanningRecorder:
             self.stream.log(path, rr.Scalars(float(value)))
 
     def close(self) -> None:
+        """Flushes the recording and moves it to ``path`` (atomically)."""
         self.stream.flush()
         self.stream.disconnect()
+        if self._partial is not None:
+            os.replace(self._partial, self.path)
+            self._partial = None
 
 
 def spawn_viewer(stream: rr.RecordingStream | None = None, port: int = 9876,

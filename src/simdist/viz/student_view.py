@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import os
+
 import rerun as rr
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from simdist.modules.rssm import RSSMState
+from simdist.utils.atomic import temp_path_beside
 from simdist.utils.device import module_device
 
 
@@ -33,7 +36,8 @@ def record_student_episode(env, teacher, twist, path: str, steps: int,
         ``path``.
     """
     stream = rr.RecordingStream(application_id)
-    stream.save(path)
+    partial = temp_path_beside(path)  # renamed to ``path`` once complete
+    stream.save(str(partial))
     names = env.base_env.state_layout.names()
     layout = env.base_env.state_layout
     fields = [(f"{n}/{i}", layout[n].start + i) for n in names
@@ -72,4 +76,5 @@ def record_student_episode(env, teacher, twist, path: str, steps: int,
             td = step_mdp(td)
     stream.flush()
     stream.disconnect()
+    os.replace(partial, path)
     return path
