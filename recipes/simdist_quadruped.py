@@ -6,7 +6,10 @@ killed stage resumes from its last checkpoint):
 1. ``expert``: load the committed state-based SAC expert (or retrain it on request);
    ``expert_zero_shot`` measures its transfer to every named domain.
 2. ``dataset``: a perturbed-expert dataset on disk (mixture of final and earlier
-   policies, SimDist's burst/pause action noise, expert-critic value labels).
+   policies, SimDist's burst/pause action noise, expert-critic value labels) on mixed
+   terrain (``data_task``: slopes of -15..15 degrees under the training dynamics
+   randomisation), so the geometry of every target is in distribution and only its
+   dynamics shift (friction, softness, motors, latency, payload) is not.
 3. ``pretrain``: the SimDist world model (history encoder on robot-measurable
    observations only, latent dynamics, reward, value, policy prior) on that dataset.
 4. ``zero_shot``: latent MPPI with the pretrained model, in simulation and in the target.
@@ -26,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,17 +38,19 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from simdist.agents import SimDistAgent, SimDistConfig
-from simdist.data import DatasetConfig, generate_dataset, load_dataset
+from simdist.data import DatasetConfig, generate_dataset, generate_shard, load_dataset
+from simdist.data.dataset import read_dataset_meta
 from simdist.envs import TARGETS, describe_ranges, get_target
 from simdist.experts import Expert, SACExpertConfig, train_sac_expert
 from simdist.modules import SimDistWorldModel, StateDecoder
 from simdist.objectives import ProbeLoss
+from simdist.objectives.simdist_pretrain import latent_prediction_error
 from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, train_resumable)
 from simdist.pipelines.report import plot_results, print_table
 from simdist.utils import (StageRunner, device_argument, load_checkpoint, load_memmap,
-                           save_atomic, save_memmap)
+                           save_atomic, save_memmap, write_json_atomic)
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -59,7 +63,8 @@ TARGET_KEYS = ["observation", "action", "is_init", ("next", "observation"),
 class Config:
     """Flat recipe config; presets below override fields. Saved as ``config.json``."""
 
-    task: str = "quadruped-flat"
+    task: str = "quadruped-flat"         # evaluation task; a target sets its own slope
+    data_task: str = "quadruped-terrain"  # expert retraining and the dataset: mixed slopes
     target: str = "slippery_slope"
     expert: str = DEFAULT_EXPERT
     retrain_expert: bool = False
@@ -78,7 +83,11 @@ class Config:
     model_horizon: int = 5
     pretrain_updates: int = 3000
     probe_updates: int = 1000    # visualisation only (rerun recordings)
-    value_weight: float = 1e-3   # value labels are ~100x a step's reward (gamma 0.99)
+    # Value labels are discounted returns, up to 1/(1-gamma) = 100 rewards: weighting their
+    # squared error by ~(1-gamma)^2 regresses V/100 at weight 1 (errors of 0.1 in V/100
+    # would otherwise cost 100x the consistency term in the shared encoder).
+    value_weight: float = 1e-3
+    heldout_episodes: int = 32  # fresh-seed episodes for the latent prediction diagnostic
     slice_len: int = 16
     batch_slices: int = 32
     # planner
@@ -104,7 +113,7 @@ class Config:
 
 PRESETS = {
     "default": {},
-    "tiny": {"episodes": 2, "episode_steps": 20, "expert_targets": ["sim", "slippery_slope"],
+    "tiny": {"episodes": 2, "episode_steps": 20, "heldout_episodes": 2, "expert_targets": ["sim", "slippery_slope"],
              "dataset_episodes": 4, "dataset_shard_episodes": 2, "model_size": "tiny",
              "model_horizon": 3, "pretrain_updates": 4, "slice_len": 8, "batch_slices": 4,
              "planner_horizon": 3, "planner_samples": 16, "planner_iterations": 1,
@@ -125,7 +134,7 @@ def expert_stage(cfg: Config, stage_dir: Path) -> dict:
     """Loads the committed expert, or retrains it (resumable) when asked."""
     path = Path(cfg.expert)
     if cfg.retrain_expert:
-        path = train_sac_expert(SACExpertConfig(task=cfg.task, total_frames=cfg.expert_frames,
+        path = train_sac_expert(SACExpertConfig(task=cfg.data_task, total_frames=cfg.expert_frames,
                                                 seed=cfg.seed), stage_dir)
     if not path.exists():
         raise FileNotFoundError(
@@ -153,17 +162,37 @@ def expert_zero_shot_stage(cfg: Config, expert_path: str) -> dict:
     return {t: evaluate(cfg, t, policy) for t in tqdm(cfg.expert_targets, desc="expert zero-shot")}
 
 
-def dataset_stage(cfg: Config, expert_path: str, stage_dir: Path) -> dict:
+def dataset_config(cfg: Config) -> DatasetConfig:
+    return DatasetConfig(task=cfg.data_task, episodes=cfg.dataset_episodes,
+                         episode_steps=cfg.episode_steps, shard_episodes=cfg.dataset_shard_episodes,
+                         num_workers=cfg.dataset_workers, seed=cfg.seed)
+
+
+def load_experts(expert_path: str) -> tuple[Expert, list[Expert]]:
+    """The final expert and its earlier snapshots (the dataset's policy mixture)."""
     snapshots = sorted(load_checkpoint(expert_path)["snapshots"])
-    earlier = [Expert.load(expert_path, snapshot=s) for s in snapshots]
-    data_cfg = DatasetConfig(task=cfg.task, episodes=cfg.dataset_episodes,
-                             episode_steps=cfg.episode_steps,
-                             shard_episodes=cfg.dataset_shard_episodes,
-                             num_workers=cfg.dataset_workers, seed=cfg.seed)
-    path = generate_dataset(data_cfg, stage_dir / "data", Expert.load(expert_path), earlier)
-    meta = json.loads((path / "meta.json").read_text())
+    return Expert.load(expert_path), [Expert.load(expert_path, snapshot=s) for s in snapshots]
+
+
+def dataset_stage(cfg: Config, expert_path: str, stage_dir: Path) -> dict:
+    path = generate_dataset(dataset_config(cfg), stage_dir / "data", *load_experts(expert_path))
+    meta = read_dataset_meta(path)
+    data = load_memmap(path / "data", manifest=meta["files"])
     return {"path": str(path), "transitions": meta["transitions"], "bytes": meta["bytes"],
-            "generation_s": meta["seconds"]}
+            "generation_s": meta["seconds"],
+            "noised_fraction": data["noised"].float().mean().item(),
+            "final_expert_unnoised_fraction": data["expert_active"].float().mean().item()}
+
+
+def heldout_prediction_error(cfg: Config, agent: SimDistAgent, expert_path: str) -> list[float]:
+    """Latent prediction error relative to the latent's variance, per step of the model's
+    horizon, on perturbed-expert episodes from seeds the dataset never used."""
+    data_cfg = dataclasses.replace(dataset_config(cfg), episodes=cfg.heldout_episodes,
+                                   shard_episodes=cfg.heldout_episodes, num_workers=1)
+    # shard indices past the dataset's own are fresh seeds (see simdist.data.shard_seed)
+    episodes = generate_shard(data_cfg, dataset_config(cfg).shards + 1, *load_experts(expert_path))
+    return latent_prediction_error(agent.world_model, episodes.to(agent.device),
+                                   cfg.model_horizon)
 
 
 def new_agent(cfg: Config, obs_dim: int, action_dim: int) -> SimDistAgent:
@@ -173,7 +202,14 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int) -> SimDistAgent:
                                           value_weight=cfg.value_weight)).to(cfg.device)
 
 
-def pretrain_stage(cfg: Config, dataset: str, stage_dir: Path) -> dict:
+def term_shares(metrics: dict) -> dict:
+    """Each loss term's share of the summed loss (how much each shapes the latent)."""
+    terms = {k: v for k, v in metrics.items() if k.startswith("loss_")}
+    total = sum(terms.values()) or 1.0
+    return {k: v / total for k, v in terms.items()}
+
+
+def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path) -> dict:
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
     obs = buffer.storage._storage["observation"]
@@ -185,9 +221,12 @@ def pretrain_stage(cfg: Config, dataset: str, stage_dir: Path) -> dict:
         cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim},
         stage_dir / "training.pt", desc="pretrain world model")
     save_atomic(agent.world_model.state_dict(), stage_dir / "world_model.pt")
+    first, last = mean_metrics(history[:50], 50), mean_metrics(history)
     return {"path": str(stage_dir / "world_model.pt"), "obs_dim": obs.shape[-1],
             "action_dim": buffer.storage._storage["action"].shape[-1],
-            "first": mean_metrics(history[:50], 50), "last": mean_metrics(history)}
+            "first": first, "last": last,
+            "term_shares_first": term_shares(first), "term_shares_last": term_shares(last),
+            "heldout_prediction_error_rel": heldout_prediction_error(cfg, agent, expert_path)}
 
 
 def load_agent(cfg: Config, pretrained: dict, path: str | None = None) -> SimDistAgent:
@@ -332,6 +371,7 @@ def main(argv=None):
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
     parser.add_argument("--target", help=f"deployment target, any of {sorted(TARGETS)}")
     parser.add_argument("--episodes", type=int, help="evaluation episodes per point")
+    parser.add_argument("--seed", type=int, help="seed of every stage (default 0)")
     parser.add_argument("--expert", help=f"expert checkpoint (default {DEFAULT_EXPERT})")
     parser.add_argument("--retrain-expert", action="store_true")
     parser.add_argument("--output-dir")
@@ -340,6 +380,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
     overrides = {k: v for k, v in (("target", args.target), ("episodes", args.episodes),
+                                   ("seed", args.seed),
                                    ("expert", args.expert), ("output_dir", args.output_dir))
                  if v is not None}
     cfg = dataclasses.replace(cfg, retrain_expert=args.retrain_expert, device=args.device,
@@ -363,7 +404,12 @@ def main(argv=None):
     expert_zero_shot = stage("expert_zero_shot",
                              lambda d: expert_zero_shot_stage(cfg, expert["path"]))
     dataset = stage("dataset", lambda d: dataset_stage(cfg, expert["path"], d))
-    pretrained = stage("pretrain", lambda d: pretrain_stage(cfg, dataset["path"], d))
+    pretrained = stage("pretrain", lambda d: pretrain_stage(cfg, dataset["path"],
+                                                            expert["path"], d))
+    print("pretraining: loss-term shares (last updates) "
+          + ", ".join(f"{k[5:]} {100 * v:.0f}%" for k, v in pretrained["term_shares_last"].items())
+          + "; held-out latent prediction error / latent variance at steps 1..H: "
+          + ", ".join(f"{e:.2f}" for e in pretrained["heldout_prediction_error_rel"]))
 
     def zero_shot(d):
         agent = load_agent(cfg, pretrained)
@@ -383,12 +429,11 @@ def main(argv=None):
     results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds)
     print_table(results, cfg.target)
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
-    (out / "results.json").write_text(json.dumps(
+    write_json_atomic(out / "results.json",
         {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
          "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
          "planner_zero_shot": planner_zero_shot, "probe": probe, "recordings": recordings,
-         "curves": results,
-         "timings_s": runner.timings}, indent=2))
+         "curves": results, "timings_s": runner.timings})
     plot_results(results, cfg.target, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     print(f"rerun recordings (open with `rerun FILE`): {recordings['before']}, "

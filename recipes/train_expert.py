@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 
 import simdist  # noqa: F401
 from simdist.experts import Expert, SACExpertConfig, evaluate, train_sac_expert
 from simdist.envs import TARGETS, get_task
-from simdist.utils import load_checkpoint
+from simdist.utils import atomic_path, load_checkpoint, write_json_atomic
 
 
 def plot_training_curve(curve: list[dict], path) -> None:
@@ -42,7 +41,8 @@ def plot_training_curve(curve: list[dict], path) -> None:
     for ax in (left, right):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
 
 
@@ -83,7 +83,7 @@ def main(argv=None):
                                   target=None if target == "sim" else TARGETS[target])
         print(f"{target:15s} return {report[target]['return']:7.1f}   "
               f"forward progress {report[target]['forward_progress']:5.2f} m")
-    (path.parent / "transfer.json").write_text(json.dumps(report, indent=2))
+    write_json_atomic(path.parent / "transfer.json", report)
 
 
 if __name__ == "__main__":

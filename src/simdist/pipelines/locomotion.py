@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
+from simdist.pipelines.statistics import summarise
 
 
 def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), task="quadruped-flat",
@@ -36,15 +37,18 @@ def rollout(env, policy, steps: int) -> TensorDict:
 
 
 def progress_stats(td: TensorDict, command_index: int) -> dict:
-    """Forward progress per episode (m) and as a fraction of the commanded distance."""
+    """Forward progress per episode (m) and as a fraction of the commanded distance, with
+    the fraction's mean, std, IQM and bootstrap 95% CI of the mean over episodes."""
     progress = td["next", "forward_progress"][:, -1, 0]
     command = td["observation"][:, 0, command_index]
     distance = command * td.shape[1] * CONTROL_TIMESTEP
     fraction = (progress / distance).numpy()
     metres = progress.numpy()
+    summary = summarise(fraction)
     return {"progress_m": metres.tolist(), "fraction": fraction.tolist(),
             "mean_m": float(np.mean(metres)), "std_m": float(np.std(metres)),
-            "mean_fraction": float(np.mean(fraction)), "std_fraction": float(np.std(fraction)),
+            "mean_fraction": summary["mean"], "std_fraction": summary["std"],
+            "iqm_fraction": summary["iqm"], "ci_fraction": [summary["ci_low"], summary["ci_high"]],
             "return": float(td["next", "reward"].sum(1).mean())}
 
 

@@ -20,23 +20,28 @@ def format_table(results: dict, target: str) -> str:
     """A plain-text table: one row per method and data budget.
 
     Examples:
-        >>> s = {"mean_m": 1.0, "std_m": 0.1, "mean_fraction": 0.5, "std_fraction": 0.05}
+        >>> s = {"mean_m": 1.0, "std_m": 0.1, "mean_fraction": 0.5, "std_fraction": 0.05,
+        ...      "iqm_fraction": 0.52, "ci_fraction": [0.45, 0.55]}
         >>> print(format_table({"minutes": [0.0], "m": [s]}, "ice"))  # doctest: +NORMALIZE_WHITESPACE
-        Forward progress in ice (mean +- std over episodes)
-        method                            target data    progress (m)   of commanded
-        m                                    0.00 min    1.00 +- 0.10     50% +- 5%
+        Forward progress in ice, % of the commanded distance over episodes (mean, IQM,
+        bootstrap 95% CI of the mean)
+        method    target data  progress (m)   mean    IQM    95% CI
+        m            0.00 min          1.00    50%    52% [  45,   55]%
     """
-    lines = [f"Forward progress in {target} (mean +- std over episodes)",
-             f"{'method':33s} {'target data':>12s} {'progress (m)':>15s} {'of commanded':>14s}"]
-    for name in _methods(results):
-        for minutes, r in zip(results["minutes"], results[name]):
-            lines.append(f"{name:33s} {minutes:8.2f} min {r['mean_m']:7.2f} +- {r['std_m']:<5.2f}"
-                         f" {100 * r['mean_fraction']:5.0f}% +- {100 * r['std_fraction']:.0f}%")
+    lines = [f"Forward progress in {target}, % of the commanded distance over episodes "
+             "(mean, IQM, bootstrap 95% CI of the mean)",
+             f"{'method':33s} {'target data':>12s} {'progress (m)':>13s} {'mean':>6s} "
+             f"{'IQM':>6s} {'95% CI':>13s}"]
+    rows = [(name, minutes, r) for name in _methods(results)
+            for minutes, r in zip(results["minutes"], results[name])]
     if "planner_in_sim" in results:
-        r = results["planner_in_sim"]
-        lines.append(f"{'(pretrained planner in sim)':33s} {'-':>12s} {r['mean_m']:7.2f} +- "
-                     f"{r['std_m']:<5.2f} {100 * r['mean_fraction']:5.0f}% +- "
-                     f"{100 * r['std_fraction']:.0f}%")
+        rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
+    for name, minutes, r in rows:
+        when = f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
+        iqm = r.get("iqm_fraction", r["mean_fraction"])
+        low, high = r.get("ci_fraction", [r["mean_fraction"]] * 2)
+        lines.append(f"{name:33s} {when} {r['mean_m']:13.2f} {100 * r['mean_fraction']:5.0f}% "
+                     f"{100 * iqm:5.0f}% [{100 * low:4.0f}, {100 * high:4.0f}]%")
     return "\n".join(lines)
 
 
@@ -54,17 +59,17 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
     minutes = results["minutes"]
     for name in _methods(results):
         mean = [100 * r["mean_fraction"] for r in results[name]]
-        std = [100 * r["std_fraction"] for r in results[name]]
+        ci = [r.get("ci_fraction", [r["mean_fraction"]] * 2) for r in results[name]]
         style = "--" if name.startswith("expert") else "-o"
         line, = ax.plot(minutes, mean, style, label=name)
-        ax.fill_between(minutes, [m - s for m, s in zip(mean, std)],
-                        [m + s for m, s in zip(mean, std)], color=line.get_color(), alpha=0.15)
+        ax.fill_between(minutes, [100 * c[0] for c in ci], [100 * c[1] for c in ci],
+                        color=line.get_color(), alpha=0.15)
     if "planner_in_sim" in results:
         ax.axhline(100 * results["planner_in_sim"]["mean_fraction"], color="gray", lw=1,
                    ls=":", label="pretrained planner in sim")
     ax.axhline(100, color="k", lw=0.5)
     ax.set_xlabel(f"minutes of 50 Hz data collected in {target}")
-    ax.set_ylabel("forward progress\n(% of commanded distance)")
+    ax.set_ylabel("forward progress, % of commanded\n(mean, band: bootstrap 95% CI)")
     ax.set_title(f"SimDist transfer to {target}")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
