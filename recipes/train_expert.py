@@ -8,7 +8,7 @@ The committed experts came from two commands (README, "Experts and perturbed dat
     # 1. flat ground, from scratch: 400k frames, ~2.2 h on 2 cores
     python recipes/train_expert.py --task quadruped-flat --out checkpoints/quadruped_expert_flat
     # 2. mixed terrain (slopes of -15..15 degrees), continuing the flat expert
-    python recipes/train_expert.py --task quadruped-terrain --frames 100000 \
+    python recipes/train_expert.py --task quadruped-terrain --frames 80000 \
         --init-from checkpoints/quadruped_expert_flat/expert.pt --alpha-init 0.02 \
         --init-random-frames 10000 --updates-per-batch 16 --out checkpoints/quadruped_expert
 
