@@ -70,3 +70,25 @@ def test_load_checks_the_experts_keys_and_weights(tmp_path):
     (tmp_path / "bad.pt").write_bytes(path.read_bytes()[:100])  # truncated
     with pytest.raises(CorruptCheckpointError, match="corrupt or incompatible.*train_expert"):
         Expert.load(tmp_path / "bad.pt")
+
+
+def test_warm_start_puts_the_loaded_critic_into_every_q_copy(tmp_path):
+    # SACLoss re-initialises its Q copies; a warm start must overwrite all of them (and
+    # their targets) with the loaded critic, or the actor is trained on a random critic.
+    start = train_sac_expert(SACExpertConfig(total_frames=256, **TINY), tmp_path / "a",
+                             progress=False)
+    loaded = Expert.load(start)
+    cfg = SACExpertConfig(total_frames=64, init_from=str(start), alpha_init=0.02,
+                          **{**TINY, "init_random_frames": 10_000, "checkpoint_every": 64})
+    train_sac_expert(cfg, tmp_path / "b", progress=False)  # no update before it saves
+    state = torch.load(tmp_path / "b" / "latest.pt", weights_only=True)["loss"]
+    critic = loaded.critic.state_dict()
+    for prefix in ("qvalue_network_params", "target_qvalue_network_params"):
+        for name, value in critic.items():
+            saved = state[f"{prefix}.{name}"]
+            assert saved.shape[0] == 2
+            torch.testing.assert_close(saved, value.expand_as(saved))
+    actor = loaded.actor.state_dict()
+    for name, value in actor.items():
+        torch.testing.assert_close(state[f"actor_network_params.{name}"], value)
+    assert abs(state["log_alpha"].exp().item() - 0.02) < 1e-6

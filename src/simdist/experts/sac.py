@@ -227,14 +227,14 @@ def train_sac_expert(cfg: SACExpertConfig, out_dir: str | Path, progress: bool =
         critic.load_state_dict(start.critic.state_dict())
     loss = SACLoss(actor, critic, num_qvalue_nets=2, loss_function="l2",
                    alpha_init=cfg.alpha_init)
+    loss.make_value_estimator(gamma=cfg.gamma)
+    updater = SoftUpdate(loss, tau=cfg.tau)
     if cfg.init_from is not None:
         # SACLoss re-initialises each of its Q copies (and their targets) so that they
         # differ; a warm start must put the loaded critic back into every one of them.
         loaded = TensorDict.from_module(critic).data.expand(2)
         loss.qvalue_network_params.data.update_(loaded)
         loss.target_qvalue_network_params.data.update_(loaded)
-    loss.make_value_estimator(gamma=cfg.gamma)
-    updater = SoftUpdate(loss, tau=cfg.tau)
     optim = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(cfg.buffer_size),
                                     batch_size=cfg.batch_size)
