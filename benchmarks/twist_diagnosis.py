@@ -38,7 +38,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
 import twist_dmc as recipe  # noqa: E402  (the recipe's config and stage helpers)
 from simdist.agents import DreamerPolicy, TwistStudent  # noqa: E402
 from simdist.envs import VisualRandomisation  # noqa: E402
-from simdist.modules import DreamerWorldModel, PixelEncoder, RandomShift  # noqa: E402
+from simdist.modules import (DreamerWorldModel, PixelEncoder, RandomRotate,  # noqa: E402
+                             RandomShift)
 from simdist.pipelines import (EpisodeReplay, control_env, evaluate_returns,  # noqa: E402
                                load_episodes, mean_metrics, train_resumable)
 
@@ -144,14 +145,15 @@ def probe(args, cfg, teacher_result: dict) -> None:
     test, train = order[: len(order) // 6], order[len(order) // 6:]
     cache = args.work / "probe_renders"
     cache.mkdir(parents=True, exist_ok=True)
-    heldout = None
-    if args.heldout_renders:
-        path = cache / f"heldout_s{args.seed}.pt"
-        if not path.exists():
-            torch.save(render_states(args.task, states[test],
-                                     VisualRandomisation.heldout_evaluation(),
-                                     args.seed + 20_000)[0], path)
-        heldout = torch.load(path)
+    heldout = {}  # name -> the test states rendered under the evaluation's randomisation
+    if args.heldout_renders:  # and without its camera jitter: textures alone
+        for name, camera in (("heldout", True), ("heldout_nocam", False)):
+            path = cache / f"{name}_s{args.seed}.pt"
+            if not path.exists():
+                torch.save(render_states(args.task, states[test],
+                                         VisualRandomisation.heldout_evaluation(camera=camera),
+                                         args.seed + 20_000)[0], path)
+            heldout[name] = torch.load(path)
     images = pixels[train][None]  # [1 + extra renders, N_train, ...]
     if args.extra_renders:
         path = cache / f"extra{args.extra_renders}_s{args.seed}.pt"
@@ -160,7 +162,10 @@ def probe(args, cfg, teacher_result: dict) -> None:
                                      args.seed + 30_000, args.extra_renders), path)
         images = torch.cat([images, torch.load(path)])
     encoder = probe_encoder(args, cfg)
-    shift = RandomShift(args.shift, args.shift_per) if args.shift else None
+    shift = None  # a probe batch is one image per state: per frame
+    if args.shift or args.rotate:
+        shift = torch.nn.Sequential(RandomShift(args.shift, "frame"),
+                                    RandomRotate(args.rotate, "frame"))
     head = torch.nn.Linear(encoder.embed_dim, states.shape[-1])
     params = [*encoder.parameters(), *head.parameters()]
     optim = torch.optim.Adam(params, lr=args.lr or 3e-4)
@@ -181,8 +186,8 @@ def probe(args, cfg, teacher_result: dict) -> None:
         index = torch.randint(n, (args.batch,))
         render = torch.randint(len(images), (args.batch,))
         batch = images[render, index]
-        if shift is not None:  # a probe batch is one image per state: per frame
-            batch = shift(batch[:, None])[:, 0] if args.shift_per == "sequence" else shift(batch)
+        if shift is not None:
+            batch = shift(batch)
         loss = (head(encoder(batch)) - (states[train[index]] - mean) / std).pow(2).mean()
         optim.zero_grad()
         loss.backward()
@@ -192,8 +197,8 @@ def probe(args, cfg, teacher_result: dict) -> None:
                       "images_train": n * len(images), "images_test": len(test),
                       "r2_test": r2(pixels[test], states[test]),
                       "r2_train": r2(images[0, :len(test)], states[train[:len(test)]])}
-            if heldout is not None:
-                record["r2_heldout"] = r2(heldout, states[test])
+            for name, images_heldout in heldout.items():
+                record[f"r2_{name}"] = r2(images_heldout, states[test])
             record["seconds"] = round(time.perf_counter() - start, 1)
             print(json.dumps(record), flush=True)
 
@@ -215,7 +220,8 @@ def main():
     parser.add_argument("--norm", default=None, choices=["layer"], help="probe: encoder norm")
     parser.add_argument("--input-norm", default="fixed", choices=["fixed", "image"])
     parser.add_argument("--shift", type=int, default=0, help="probe: random-shift pad")
-    parser.add_argument("--shift-per", default="frame", choices=["frame", "sequence"])
+    parser.add_argument("--rotate", type=float, default=0.0,
+                        help="probe: random in-plane rotation, degrees")
     parser.add_argument("--extra-renders", type=int, default=0,
                         help="probe: extra training renders of D's states")
     parser.add_argument("--heldout-renders", action="store_true",

@@ -90,7 +90,8 @@ class Config:
     student_norm: str | None = None  # None or "layer" (PixelEncoder.norm)
     student_input_norm: str = "fixed"  # or "image" (PixelEncoder.input_norm)
     student_shift_pad: int = 0  # DrQ random shift in pixels, 0: none
-    student_shift_per: str = "sequence"  # one shift per slice, or "frame"
+    student_shift_per: str = "sequence"  # one draw per slice, or "frame"
+    student_rotate_deg: float = 0.0  # random in-plane rotation (TwistConfig.rotate_deg)
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4
     critic_lr: float = 3e-4
@@ -176,7 +177,8 @@ def twist_config(cfg: Config, overrides: dict) -> TwistConfig:
     """The recipe's student settings, with an ablation's ``overrides`` on top."""
     config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
                          max_imagination_starts=cfg.imagination_starts,
-                         shift_pad=cfg.student_shift_pad, shift_per=cfg.student_shift_per)
+                         shift_pad=cfg.student_shift_pad, shift_per=cfg.student_shift_per,
+                         rotate_deg=cfg.student_rotate_deg)
     return dataclasses.replace(config, **overrides)
 
 

@@ -67,8 +67,9 @@ def test_random_shift_config_augments_training_images_only():
                                         input_norm="image")
     assert student.encoder.net[0].out_channels == 6
     twist = TwistStudent(teacher, student, TwistConfig(horizon=2, shift_pad=4,
-                                                       shift_per="sequence"))
-    assert twist.augment.pad == 4 and twist.augment.per == "sequence"
+                                                       shift_per="sequence", rotate_deg=5.0))
+    shift, rotate = twist.augment
+    assert (shift.pad, shift.per, rotate.max_deg, rotate.per) == (4, "sequence", 5.0, "sequence")
     pixels = torch.randint(0, 255, (2, 4, 64, 64, 3), dtype=torch.uint8)
     batch = TensorDict({"action": torch.zeros(2, 4, 1),
                         "is_init": torch.zeros(2, 4, 1, dtype=torch.bool),

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from simdist.modules import RandomShift
+from simdist.modules import RandomRotate, RandomShift
 
 
 def _ramp(lead=(2, 3), size=8):
@@ -61,3 +61,30 @@ def test_generator_makes_shifts_reproducible_and_float_images_work():
     a = RandomShift(2, generator=torch.Generator().manual_seed(3))(images)
     b = RandomShift(2, generator=torch.Generator().manual_seed(3))(images)
     assert a.dtype == torch.float32 and torch.equal(a, b)
+
+
+def test_rotation_turns_a_line_about_the_centre_and_shares_angles_per_sequence():
+    torch.manual_seed(0)
+    line = torch.zeros(8, 3, 33, 33, 1)
+    line[..., 16, :, 0] = 200.0  # a horizontal line through the centre, 3 frames per sequence
+    out = RandomRotate(max_deg=30, per="sequence")(line)
+    assert (out[:, 1:] == out[:, :1]).all()  # one angle per sequence
+    assert (out[..., 16, 16, 0] > 150).all()  # the centre stays on the line
+    tilted = (out[:, 0, :, 0, 0] > 100).float().argmax(-1)  # row of the line at the left edge
+    assert len(torch.unique(tilted)) > 1  # sequences turned by different angles
+    frames = RandomRotate(max_deg=30, per="frame")(line)
+    assert not (frames[:, 1:] == frames[:, :1]).all()
+    uint8 = RandomRotate(10, per="frame")(line[:, 0].to(torch.uint8))
+    assert uint8.dtype == torch.uint8 and uint8.shape == (8, 33, 33, 1)
+
+
+def test_rotation_identity_cases_and_bad_arguments():
+    images = _ramp((2, 3))
+    assert torch.equal(RandomRotate(5).eval()(images), images)
+    assert torch.equal(RandomRotate(0)(images), images)
+    with pytest.raises(ValueError, match="max_deg"):
+        RandomRotate(-1)
+    with pytest.raises(ValueError, match="per"):
+        RandomRotate(5, per="batch")
+    with pytest.raises(ValueError, match="sequence"):
+        RandomRotate(5, per="sequence")(torch.zeros(8, 8, 3))

@@ -13,7 +13,7 @@ import torch
 from tensordict import TensorDictBase
 
 from simdist.agents.dreamer import DreamerAgent, DreamerPolicy
-from simdist.modules import DreamerWorldModel, RandomShift
+from simdist.modules import DreamerWorldModel, RandomRotate, RandomShift
 from simdist.objectives import ImaginedAlignmentLoss, TwistDistillationLoss
 from simdist.utils.device import module_device, move_to_device
 
@@ -23,8 +23,10 @@ class TwistConfig:
     """Student training settings (TWIST: slices of 50, imagination horizon 15).
 
     ``shift_pad > 0`` applies DrQ's random shift (:class:`~simdist.modules.RandomShift`)
-    to the student's images in every update (never at deployment): one shift per slice
-    (``shift_per="sequence"``) or per image (``"frame"``).
+    and ``rotate_deg > 0`` a random in-plane rotation
+    (:class:`~simdist.modules.RandomRotate`) to the student's images in every update
+    (never at deployment): one draw per slice (``shift_per="sequence"``) or per image
+    (``"frame"``).
 
     Examples:
         >>> from simdist.agents import DreamerConfig
@@ -44,6 +46,7 @@ class TwistConfig:
     max_imagination_starts: int | None = 256
     shift_pad: int = 0
     shift_per: str = "sequence"
+    rotate_deg: float = 0.0
 
 
 class TwistStudent:
@@ -86,8 +89,11 @@ class TwistStudent:
             self.imagined.set_keys(teacher_observation=teacher_obs,
                                    student_observation=pixels_key)
         self.pixels_key = pixels_key
-        self.augment = (RandomShift(config.shift_pad, config.shift_per)
-                        if config.shift_pad else None)
+        self.augment = None
+        if config.shift_pad or config.rotate_deg:
+            self.augment = torch.nn.Sequential(
+                RandomShift(config.shift_pad, config.shift_per),
+                RandomRotate(config.rotate_deg, config.shift_per))
         self.optim = torch.optim.Adam(student.parameters(), lr=config.lr)
 
     @property

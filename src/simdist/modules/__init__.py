@@ -1,6 +1,6 @@
 """World-model parts as composable modules (TensorDict adapters where keys matter)."""
 
-from simdist.modules.augment import RandomShift
+from simdist.modules.augment import RandomRotate, RandomShift
 from simdist.modules.encoders import (ChannelLayerNorm, HistoryEncoder, PixelEncoder,
                                       StateEncoder, simnorm)
 from simdist.modules.heads import Actor, PixelDecoder, PolicyPrior, ScalarHead, StateDecoder
@@ -9,7 +9,7 @@ from simdist.modules.rssm import RSSM, RSSMState
 from simdist.modules.simdist_model import SIMDIST_SIZES, MLPDynamics, SimDistWorldModel
 from simdist.modules.world_model import RSSM_SIZES, DreamerWorldModel
 
-__all__ = ["RandomShift", "ChannelLayerNorm", "HistoryEncoder", "PixelEncoder", "StateEncoder",
+__all__ = ["RandomShift", "RandomRotate", "ChannelLayerNorm", "HistoryEncoder", "PixelEncoder", "StateEncoder",
            "simnorm", "Actor", "PixelDecoder",
            "PolicyPrior", "ScalarHead", "StateDecoder", "RSSM", "RSSMState", "SIMDIST_SIZES",
            "MLPDynamics", "SimDistWorldModel", "RSSM_SIZES", "DreamerWorldModel",

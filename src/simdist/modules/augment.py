@@ -71,3 +71,59 @@ class RandomShift(nn.Module):
         cols = (torch.arange(W, device=images.device) + shift[:, 1:]).clamp(0, W - 1)  # [N, W]
         n = torch.arange(flat.shape[0], device=images.device)[:, None, None]
         return flat[n, rows[:, :, None], cols[:, None, :]].reshape(images.shape)
+
+
+class RandomRotate(nn.Module):
+    """In-plane rotation by a uniform angle in ``[-max_deg, max_deg]`` about the centre.
+
+    Bilinear resampling with edge pixels replicated outside the image; uint8 images come
+    back rounded to uint8. ``per`` as in :class:`RandomShift`: one angle per sequence
+    (``[..., T, H, W, C]``) or per image. Identity in ``eval()`` mode or with
+    ``max_deg=0``. Composes with :class:`RandomShift` (e.g. ``nn.Sequential``): a camera
+    that pans and rolls a little moves the image roughly this way.
+
+    Examples:
+        >>> rotate = RandomRotate(max_deg=5.0, per="frame")
+        >>> images = torch.randint(0, 255, (4, 64, 64, 3), dtype=torch.uint8)
+        >>> rotate(images).dtype, rotate(images).shape
+        (torch.uint8, torch.Size([4, 64, 64, 3]))
+        >>> rotate.eval()(images).equal(images)
+        True
+    """
+
+    def __init__(self, max_deg: float = 5.0, per: str = "sequence",
+                 generator: torch.Generator | None = None):
+        super().__init__()
+        if not 0 <= max_deg <= 180:
+            raise ValueError(f"max_deg must be in [0, 180], got {max_deg}")
+        if per not in SHIFT_MODES:
+            raise ValueError(f"per must be one of {SHIFT_MODES}, got {per!r}")
+        self.max_deg, self.per, self.generator = float(max_deg), per, generator
+
+    def extra_repr(self) -> str:
+        return f"max_deg={self.max_deg}, per={self.per!r}"
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        if not self.training or self.max_deg == 0:
+            return images
+        if images.dim() < 3 or (self.per == "sequence" and images.dim() < 4):
+            raise ValueError(f"per={self.per!r} needs images [..., {'T, ' * (self.per == 'sequence')}"
+                             f"H, W, C], got shape {tuple(images.shape)}")
+        H, W, C = images.shape[-3:]
+        lead = images.shape[:-3]
+        shape = lead[:-1] if self.per == "sequence" else lead
+        angle = (torch.rand(shape, device=images.device, generator=self.generator) * 2 - 1)
+        angle = torch.deg2rad(angle * self.max_deg)
+        if self.per == "sequence":
+            angle = angle[..., None].expand(lead)
+        angle = angle.reshape(-1)
+        cos, sin, zero = angle.cos(), angle.sin(), torch.zeros_like(angle)
+        theta = torch.stack([torch.stack([cos, -sin, zero], -1),
+                             torch.stack([sin, cos, zero], -1)], -2)  # [N, 2, 3]
+        x = images.reshape(-1, H, W, C).permute(0, 3, 1, 2).float()
+        grid = nn.functional.affine_grid(theta, list(x.shape), align_corners=False)
+        out = nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="border",
+                                        align_corners=False).permute(0, 2, 3, 1)
+        if images.dtype == torch.uint8:
+            out = out.round().clamp(0, 255)
+        return out.to(images.dtype).reshape(images.shape)
