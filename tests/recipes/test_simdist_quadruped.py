@@ -44,7 +44,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     # Round 0 of the finetuning methods is the pretrained planner's zero-shot figure.
     assert curves["SimDist: finetune dynamics"][0] == results["planner_zero_shot"]["slippery_slope"]
     assert (tmp_path / "forward_progress.png").stat().st_size > 0
-    assert "of commanded" in proc.stdout and "SimDist: finetune dynamics" in proc.stdout
+    assert "95% CI" in proc.stdout and "SimDist: finetune dynamics" in proc.stdout
     # Finetuning touched only the dynamics: every other tensor equals the pretrained one.
     pretrained = torch.load(tmp_path / "stages" / "pretrain" / "world_model.pt", weights_only=True)
     finetuned = torch.load(tmp_path / "stages" / "round_2" / "simdist.pt", weights_only=True)
