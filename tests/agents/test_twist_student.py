@@ -82,3 +82,19 @@ def test_random_shift_config_augments_training_images_only():
     assert seen[0].shape == pixels.shape and not torch.equal(seen[0], pixels)
     assert torch.isfinite(torch.tensor(out["loss_distillation"]))
     assert TwistStudent(teacher, student, TwistConfig()).augment is None
+
+
+def test_state_term_trains_the_student_towards_the_teachers_decoding_only():
+    teacher, student, _, _, batch = _setup()
+    twist = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False,
+                                                       state_weight=1.0))
+    frozen = copy.deepcopy(teacher.world_model.state_dict())
+    first = twist.update(batch.clone())
+    for _ in range(25):
+        last = twist.update(batch.clone())
+    assert last["loss_state"] < first["loss_state"]
+    assert all(p.grad is None for p in teacher.world_model.parameters())
+    for k, v in teacher.world_model.state_dict().items():
+        assert torch.equal(v, frozen[k]), k
+    plain = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False))
+    assert "loss_state" not in plain.update(batch.clone())

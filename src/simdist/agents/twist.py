@@ -26,7 +26,10 @@ class TwistConfig:
     and ``rotate_deg > 0`` a random in-plane rotation
     (:class:`~simdist.modules.RandomRotate`) to the student's images in every update
     (never at deployment): one draw per slice (``shift_per="sequence"``) or per image
-    (``"frame"``).
+    (``"frame"``). ``state_weight > 0`` adds a term that is **not** in TWIST: the
+    teacher's frozen state decoder applied to the student's posterior features should
+    give the privileged state, ``state_weight * ||dec_T(h^S, z^S) - s||^2`` (summed over
+    state dimensions), a direct signal for the student's encoder.
 
     Examples:
         >>> from simdist.agents import DreamerConfig
@@ -47,6 +50,7 @@ class TwistConfig:
     shift_pad: int = 0
     shift_per: str = "sequence"
     rotate_deg: float = 0.0
+    state_weight: float = 0.0
 
 
 class TwistStudent:
@@ -114,12 +118,21 @@ class TwistStudent:
             batch.set(self.pixels_key, self.augment(batch.get(self.pixels_key)))
         out = dict(self.distillation(batch).items())  # writes both posteriors into the batch
         total = out["loss_distillation"]
+        if self.config.state_weight:
+            features = torch.cat([batch.get(("student", "belief")),
+                                  batch.get(("student", "stoch"))], -1)
+            decoded = self.teacher.world_model.decode(features)
+            state = (decoded - batch.get(("next", self.teacher.obs_key))).pow(2).sum(-1).mean()
+            total = total + self.config.state_weight * state
+            out["loss_state"] = state
         if self.imagined is not None:
             imagined = self.imagined(batch)
             total = total + imagined["loss_imagined"]
             out.update(imagined.items())
         self.optim.zero_grad(set_to_none=True)
         total.backward()
+        for p in self.teacher.world_model.parameters():  # frozen: drop what reached it
+            p.grad = None
         torch.nn.utils.clip_grad_norm_(self.student.parameters(), self.config.grad_clip)
         self.optim.step()
         # Read the figures after the step: on a GPU each .item() waits for the device.
