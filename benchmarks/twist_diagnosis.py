@@ -11,7 +11,11 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   shapes differ) initialised from the teacher's weights.
 - ``probe``: the student's CNN trained *supervised* to regress the state from one
   randomised image (5/6 of D's images to train, 1/6 held out); prints R^2 per state
-  dimension: can the encoder see what the teacher's latent needs?
+  dimension: can the encoder see what the teacher's latent needs? Options: the encoder
+  (``--depth``, ``--norm layer``, ``--input-norm image``), augmentation (``--shift``,
+  ``--rotate``), ``--extra-renders K`` (D's training states rendered K more times under
+  other training randomisations) and ``--heldout-renders`` (the test states re-rendered
+  under the recipe's evaluation scenes, with and without the camera jitter).
 
 Every figure in the README's TWIST "honest reading" comes from this script.
 
@@ -21,6 +25,8 @@ Usage:
     python benchmarks/twist_diagnosis.py pixels --updates 300,900 [--lr 1e-3]
     python benchmarks/twist_diagnosis.py init --updates 300,600
     python benchmarks/twist_diagnosis.py probe --updates 1500 --batch 400
+    python benchmarks/twist_diagnosis.py probe --updates 300,600,900 --batch 128 \
+        --heldout-renders --norm layer --input-norm image --shift 4
 """
 
 from __future__ import annotations
