@@ -107,8 +107,9 @@ class RandomRotate(nn.Module):
         if not self.training or self.max_deg == 0:
             return images
         if images.dim() < 3 or (self.per == "sequence" and images.dim() < 4):
-            raise ValueError(f"per={self.per!r} needs images [..., {'T, ' * (self.per == 'sequence')}"
-                             f"H, W, C], got shape {tuple(images.shape)}")
+            layout = "[..., T, H, W, C]" if self.per == "sequence" else "[..., H, W, C]"
+            raise ValueError(f"per={self.per!r} needs images {layout}, got shape "
+                             f"{tuple(images.shape)}")
         H, W, C = images.shape[-3:]
         lead = images.shape[:-3]
         shape = lead[:-1] if self.per == "sequence" else lead
