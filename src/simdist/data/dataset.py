@@ -36,6 +36,7 @@ from tqdm import tqdm
 from simdist.data.mixture import EpisodeMixture
 from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 from simdist.envs import DynamicsRandomisation, make_env
+from simdist.utils.atomic import write_json_atomic
 from simdist.utils.memmap import CorruptDataError, folder_manifest, load_memmap
 
 _DROP_NEXT = ("observation", "state", "pixels", "dynamics", "perturbation", "mixture", "is_init")
@@ -92,12 +93,6 @@ def _versions() -> dict:
         except importlib_metadata.PackageNotFoundError:
             out[name] = None
     return out
-
-
-def _write_json_atomic(path: Path, payload: dict) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(payload, indent=2, default=str))
-    tmp.replace(path)
 
 
 def make_generation_env(cfg: DatasetConfig):
@@ -311,13 +306,13 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
             now = time.perf_counter()
             meta["seconds"] += now - start
             start = now
-            _write_json_atomic(meta_path, meta)
+            write_json_atomic(meta_path, meta, default=str)
             bar.update(1)
     bar.close()
     files = folder_manifest(out / "data")  # verified by load_dataset before any use
     meta.update(transitions=cfg.episodes * cfg.episode_steps, files=files,
                 bytes=sum(f["bytes"] for f in files.values()))
-    _write_json_atomic(meta_path, meta)
+    write_json_atomic(meta_path, meta, default=str)
     return out
 
 
