@@ -27,7 +27,6 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,17 +39,18 @@ from tqdm import tqdm
 from simdist.agents import SimDistAgent, SimDistConfig
 from simdist.data import DatasetConfig, generate_dataset, generate_shard, load_dataset
 from simdist.data.dataset import read_dataset_meta
-from simdist.envs import TARGETS, describe_ranges, get_target
+from simdist.envs import TARGETS, TASKS, describe_ranges, get_target
 from simdist.experts import Expert, SACExpertConfig, train_sac_expert
-from simdist.modules import SimDistWorldModel, StateDecoder
+from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder
 from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_error
 from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, train_resumable)
-from simdist.pipelines.report import plot_results, print_table
-from simdist.utils import (StageRunner, device_argument, load_checkpoint, load_memmap,
+from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
+from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
+from simdist.utils.cli import ConfigError, check, check_positive, parse_config
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -61,51 +61,93 @@ TARGET_KEYS = ["observation", "action", "is_init", ("next", "observation"),
 
 @dataclass
 class Config:
-    """Flat recipe config; presets below override fields. Saved as ``config.json``."""
+    """Flat recipe config; presets below override fields. Saved as ``config.json``.
 
-    task: str = "quadruped-flat"         # evaluation task; a target sets its own slope
+    Every field is a command-line flag (``--kebab-case``); a value that cannot work is
+    refused before any stage runs (:meth:`__post_init__`).
+    """
+
+    task: str = "quadruped-flat"  # evaluation task; a target sets its own slope
     data_task: str = "quadruped-terrain"  # expert retraining and the dataset: mixed slopes
-    target: str = "slippery_slope"
-    expert: str = DEFAULT_EXPERT
-    retrain_expert: bool = False
-    expert_frames: int = SACExpertConfig.total_frames
+    target: str = "slippery_slope"  # deployment target (simdist.envs.TARGETS)
+    expert: str = DEFAULT_EXPERT  # expert checkpoint (SAC, recipes/train_expert.py)
+    retrain_expert: bool = False  # retrain the expert on data_task (hours on 2 CPU cores)
+    expert_frames: int = SACExpertConfig.total_frames  # SAC frames when retraining
+    # domains the expert is evaluated in zero-shot (the target is added if missing)
     expert_targets: list[str] = field(default_factory=lambda: [
         "sim", "slippery_slope", "foam", "payload", "weak_motors"])
     # evaluation episodes per point (batched worlds): 12 gave CIs of +-40 points
     episodes: int = 32
-    episode_steps: int = 250     # 5 s at 50 Hz
-    seed: int = 0
-    # dataset
-    dataset_episodes: int = 768
-    dataset_shard_episodes: int = 32
-    dataset_workers: int = 1
-    # world model
-    model_size: str = "small"
-    model_horizon: int = 5
-    pretrain_updates: int = 4000
-    probe_updates: int = 1000    # visualisation only (rerun recordings)
+    episode_steps: int = 250  # 5 s at 50 Hz
+    seed: int = 0  # seed of every stage of a single run
+    # several seeds: each runs into <output_dir>/seed_<N> and one table aggregates them
+    # (empty: a single run of --seed into <output_dir>)
+    seeds: list[int] = field(default_factory=list)
+    dataset_episodes: int = 768  # perturbed-expert episodes in the pretraining dataset
+    dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
+    dataset_workers: int = 1  # processes generating shards
+    model_size: str = "small"  # world-model size (simdist.modules.SIMDIST_SIZES)
+    model_horizon: int = 5  # steps of latent rollout in the pretraining loss
+    pretrain_updates: int = 4000  # world-model updates on the simulation dataset
+    probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
     # Value labels are discounted returns, up to 1/(1-gamma) = 100 rewards: weighting their
     # squared error by ~(1-gamma)^2 regresses V/100 at weight 1 (errors of 0.1 in V/100
     # would otherwise cost 100x the consistency term in the shared encoder).
     value_weight: float = 1e-3
     heldout_episodes: int = 32  # fresh-seed episodes for the latent prediction diagnostic
-    slice_len: int = 16
-    batch_slices: int = 32
-    # planner
-    planner_horizon: int = 5
-    planner_samples: int = 64
-    planner_iterations: int = 3
-    planner_elites: int = 8
+    slice_len: int = 16  # steps per training slice
+    batch_slices: int = 32  # slices per update
+    planner_horizon: int = 5  # latent MPPI: planning horizon (steps)
+    planner_samples: int = 64  # latent MPPI: action sequences per iteration
+    planner_iterations: int = 3  # latent MPPI: refinement iterations per step
+    planner_elites: int = 8  # latent MPPI: elites kept per iteration
     # target rounds: cumulative minutes of 50 Hz target data after each round
     budgets_min: list[float] = field(default_factory=lambda: [1.0, 2.0, 4.0, 8.0])
-    collect_episodes: int = 12   # worlds stepped at once while collecting
+    collect_episodes: int = 12  # worlds stepped at once while collecting
     finetune_updates: int = 1000  # per round, for every method (same data, same updates)
-    finetune_lr: float = 1e-4
-    sac_batch_size: int = 256
-    output_dir: str = "outputs/simdist_quadruped"
+    finetune_lr: float = 1e-4  # dynamics-only (and whole-model ablation) learning rate
+    sac_batch_size: int = 256  # continued-SAC baseline batch size
+    output_dir: str = "outputs/simdist_quadruped"  # stages, results and plots go here
     # where the world model and probe train and plan ("cpu", "cuda", "auto"); envs, the
     # dataset, the expert and the SAC baseline stay on the CPU. Not part of the results.
     device: str = "cpu"
+
+    def __post_init__(self):
+        check(self.task in TASKS, "task", f"unknown task {self.task!r}; valid: {sorted(TASKS)}")
+        check(self.data_task in TASKS, "data_task",
+              f"unknown task {self.data_task!r}; valid: {sorted(TASKS)}")
+        for name, targets in (("target", [self.target]), ("expert_targets", self.expert_targets)):
+            unknown = [t for t in targets if t not in TARGETS]
+            check(not unknown, name, f"unknown targets {unknown}; valid: {sorted(TARGETS)}")
+        check(self.model_size in SIMDIST_SIZES, "model_size",
+              f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
+        check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
+                       "dataset_shard_episodes", "dataset_workers", "model_horizon",
+                       "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
+                       "finetune_lr", "sac_batch_size", "pretrain_updates")
+        check_positive(self, "probe_updates", "finetune_updates", "value_weight",
+                       allow_zero=True)
+        check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
+              f"needs model_horizon < slice_len <= episode_steps, got {self.model_horizon}, "
+              f"{self.slice_len}, {self.episode_steps}")
+        check(len(self.budgets_min) > 0 and all(b > 0 for b in self.budgets_min)
+              and all(a < b for a, b in zip(self.budgets_min, self.budgets_min[1:])),
+              "budgets_min", f"must be positive and increasing, got {self.budgets_min}")
+        check(len(set(self.seeds)) == len(self.seeds), "seeds", f"repeated seeds {self.seeds}")
+        for name, build in (("planner_*", self.planner), ("dataset_*", lambda: dataset_config(self))):
+            try:
+                build()
+            except ValueError as error:
+                raise ConfigError(f"{name}: {error}") from error
+        try:
+            resolve_device(self.device)
+        except ValueError as error:
+            raise ConfigError(f"device: {error}") from error
+        visual = [t for t in [self.target, *self.expert_targets] if get_target(t).visual]
+        check(not visual, "target", f"{visual} change only what a camera sees; SimDist's "
+              "world model observes proprioception and the height scan (use recipes/twist_dmc.py)")
+        if self.target not in self.expert_targets:
+            self.expert_targets = [*self.expert_targets, self.target]
 
     def planner(self) -> PlannerConfig:
         return PlannerConfig(horizon=self.planner_horizon, num_samples=self.planner_samples,
@@ -367,33 +409,11 @@ def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out
 
 
 # -- the recipe -------------------------------------------------------------------------
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
-    parser.add_argument("--target", help=f"deployment target, any of {sorted(TARGETS)}")
-    parser.add_argument("--episodes", type=int, help="evaluation episodes per point")
-    parser.add_argument("--seed", type=int, help="seed of every stage (default 0)")
-    parser.add_argument("--expert", help=f"expert checkpoint (default {DEFAULT_EXPERT})")
-    parser.add_argument("--retrain-expert", action="store_true")
-    parser.add_argument("--output-dir")
-    parser.add_argument("--device", default="cpu", type=device_argument,
-                        help="where the world model trains and plans: cpu, cuda, cuda:N, auto")
-    args = parser.parse_args(argv)
-    cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
-    overrides = {k: v for k, v in (("target", args.target), ("episodes", args.episodes),
-                                   ("seed", args.seed),
-                                   ("expert", args.expert), ("output_dir", args.output_dir))
-                 if v is not None}
-    cfg = dataclasses.replace(cfg, retrain_expert=args.retrain_expert, device=args.device,
-                              **overrides)
-    unknown = [t for t in {cfg.target, *cfg.expert_targets} if t not in TARGETS]
-    if unknown:
-        parser.error(f"unknown targets {sorted(unknown)}; valid: {sorted(TARGETS)}")
-    if cfg.target not in cfg.expert_targets:
-        cfg.expert_targets = [*cfg.expert_targets, cfg.target]
+def run(cfg: Config) -> dict:
+    """Every stage of one seed into ``cfg.output_dir``; returns the results it wrote."""
     out = Path(cfg.output_dir)
     # finished stages are skipped when rerun; the device may differ from the first run's
-    runner = StageRunner(out, cfg, runtime_keys=("device",))
+    runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]), runtime_keys=("device",))
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
     def stage(name, fn):
@@ -428,17 +448,46 @@ def main(argv=None):
     recordings = stage("recordings",
                        lambda d: recording_stage(cfg, pretrained, probe, rounds[-1], out))
     results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds)
+    runner.close()
     print_table(results, cfg.target)
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
-    write_json_atomic(out / "results.json",
-        {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
-         "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
-         "planner_zero_shot": planner_zero_shot, "probe": probe, "recordings": recordings,
-         "curves": results, "timings_s": runner.timings})
+    summary = {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
+               "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
+               "planner_zero_shot": planner_zero_shot, "probe": probe,
+               "recordings": recordings, "curves": results, "timings_s": runner.timings}
+    write_json_atomic(out / "results.json", summary)
     plot_results(results, cfg.target, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     print(f"rerun recordings (open with `rerun FILE`): {recordings['before']}, "
           f"{recordings['after']}")
+    return summary
+
+
+def run_seeds(cfg: Config) -> dict:
+    """Each of ``cfg.seeds`` into ``<output_dir>/seed_<N>``, then one aggregated table."""
+    out = Path(cfg.output_dir)
+    per_seed = [run(dataclasses.replace(cfg, seed=s, seeds=[], output_dir=str(out / f"seed_{s}")))
+                for s in cfg.seeds]
+    curves = aggregate_seeds([r["curves"] for r in per_seed])
+    print(f"\n{len(cfg.seeds)} seeds {cfg.seeds} (statistics over all their episodes; "
+          "'seeds' gives each seed's mean)")
+    print_table(curves, cfg.target)
+    summary = {"config": dataclasses.asdict(cfg), "seeds": cfg.seeds, "curves": curves,
+               "per_seed": {str(s): str(out / f"seed_{s}" / "results.json") for s in cfg.seeds}}
+    write_json_atomic(out / "results.json", summary)
+    plot_results(curves, cfg.target, out / "forward_progress.png")
+    print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
+    return summary
+
+
+def main(argv=None):
+    cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
+                          prog="simdist_quadruped.py")
+    if not cfg.retrain_expert and not Path(cfg.expert).exists():  # before any work
+        raise SystemExit(f"simdist_quadruped.py: error: expert: no checkpoint at {cfg.expert}: "
+                         "train one with `python recipes/train_expert.py` or pass "
+                         "--retrain-expert")
+    return run_seeds(cfg) if cfg.seeds else run(cfg)
 
 
 def collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds) -> dict:

@@ -90,3 +90,55 @@ def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path):
     proc = _run("--preset", "tiny", "--device", "tpu9", "--output-dir", tmp_path / "c")
     assert proc.returncode == 2 and "unknown device 'tpu9'" in proc.stderr
     assert not (tmp_path / "c").exists()  # refused before any work
+
+
+def test_help_lists_every_config_field_with_its_default():
+    import dataclasses
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("simdist_quadruped_recipe",
+                                                  ROOT / "recipes" / "simdist_quadruped.py")
+    recipe = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = recipe  # dataclasses resolve annotations through it
+    spec.loader.exec_module(recipe)
+    proc = _run("--help")
+    assert proc.returncode == 0
+    text = " ".join(proc.stdout.split())  # the help wraps long lines
+    for f in dataclasses.fields(recipe.Config):
+        assert "--" + f.name.replace("_", "-") in text, f.name
+    assert "(default: 32)" in text and "--preset {default,paper,tiny}" in text
+    tiny = " ".join(_run("--preset", "tiny", "--help").stdout.split())
+    assert "(default: 2)" in tiny  # a preset's values become the defaults shown
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--episodes", "0"], "episodes: must be > 0"),
+    (["--budgets-min", "2", "1"], "budgets_min: must be positive and increasing"),
+    (["--planner-elites", "100"], "num_elites (100) must be <= num_samples"),
+    (["--model-size", "huge"], "model_size: unknown size 'huge'"),
+    (["--target", "unseen_scenes"], "change only what a camera"),
+    (["--slice-len", "2"], "needs model_horizon < slice_len"),
+])
+def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message):
+    proc = _run(*flags, "--output-dir", tmp_path / "out")
+    assert proc.returncode == 2
+    assert message in " ".join(proc.stderr.replace("│", " ").split())
+    assert not (tmp_path / "out").exists()
+
+
+def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_expert):
+    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--seeds", 0, 1,
+                "--budgets-min", 0.02, "--output-dir", tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    per_seed = [json.loads((tmp_path / f"seed_{s}" / "results.json").read_text())
+                for s in (0, 1)]
+    assert [r["config"]["seed"] for r in per_seed] == [0, 1]
+    merged = json.loads((tmp_path / "results.json").read_text())
+    assert merged["seeds"] == [0, 1] and (tmp_path / "forward_progress.png").exists()
+    for name, points in merged["curves"].items():
+        if name in ("minutes", "planner_in_sim"):
+            continue
+        for i, point in enumerate(points):
+            fractions = [r["curves"][name][i]["fraction"] for r in per_seed]
+            assert point["fraction"] == fractions[0] + fractions[1]  # pooled episodes
+            assert point["seed_means"] == pytest.approx([sum(f) / len(f) for f in fractions])
+            assert point["ci_fraction"][0] <= point["mean_fraction"] <= point["ci_fraction"][1]

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
+from simdist.pipelines.statistics import summarise_groups
 from simdist.utils.atomic import atomic_path
 
 
@@ -76,3 +79,44 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
     with atomic_path(path) as tmp:  # a crash mid-write keeps the previous plot
         fig.savefig(tmp, dpi=100)
     plt.close(fig)
+
+
+def _aggregate_point(points: list[dict]) -> dict:
+    fractions = [p["fraction"] for p in points]
+    metres = np.concatenate([np.asarray(p["progress_m"], dtype=np.float64) for p in points])
+    s = summarise_groups(fractions)
+    return {"fraction": [f for p in points for f in p["fraction"]], "progress_m": metres.tolist(),
+            "mean_m": float(metres.mean()), "std_m": float(metres.std()),
+            "mean_fraction": s["mean"], "std_fraction": s["std"], "iqm_fraction": s["iqm"],
+            "ci_fraction": [s["ci_low"], s["ci_high"]], "seed_means": s["group_means"],
+            "std_over_seeds": s["std_over_seeds"],
+            "return": float(np.mean([p["return"] for p in points]))}
+
+
+def aggregate_seeds(per_seed: list[dict]) -> dict:
+    """One results dict from several seeds' (same methods and budgets): every point pools
+    the seeds' episodes (mean, IQM, CI stratified by seed) and keeps each seed's mean.
+
+    Examples:
+        >>> point = lambda f: {"fraction": f, "progress_m": f, "return": 1.0}
+        >>> runs = [{"minutes": [0.0], "m": [point([0.1, 0.3])]},
+        ...         {"minutes": [0.0], "m": [point([0.5, 0.7])]}]
+        >>> agg = aggregate_seeds(runs)
+        >>> round(agg["m"][0]["mean_fraction"], 2), [round(m, 2) for m in agg["m"][0]["seed_means"]]
+        (0.4, [0.2, 0.6])
+    """
+    first = per_seed[0]
+    for other in per_seed[1:]:
+        if other["minutes"] != first["minutes"] or set(other) != set(first):
+            raise ValueError("seeds differ in methods or data budgets; aggregate runs of one "
+                             "config that differ only in seed")
+    out = {"minutes": first["minutes"]}
+    for name in first:
+        if name == "minutes":
+            continue
+        if name == "planner_in_sim":
+            out[name] = _aggregate_point([r[name] for r in per_seed])
+        else:
+            out[name] = [_aggregate_point([r[name][i] for r in per_seed])
+                         for i in range(len(first[name]))]
+    return out
