@@ -29,7 +29,6 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
@@ -43,12 +42,13 @@ from tensordict import TensorDict
 
 from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStudent
 from simdist.envs import TASKS, VisualRandomisation
-from simdist.modules import DreamerWorldModel
+from simdist.modules import RSSM_SIZES, DreamerWorldModel, PixelEncoder
 from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
                                evaluate_returns, load_episodes, mean_metrics, train_dreamer_online,
                                train_resumable)
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
-from simdist.utils import StageRunner, device_argument, load_checkpoint, run_jobs
+from simdist.utils import StageRunner, load_checkpoint, resolve_device, run_jobs
+from simdist.utils.cli import ConfigError, check, check_positive, parse_config
 from simdist.viz.student_view import record_student_episode
 
 TWIST = "TWIST (student)"
@@ -65,25 +65,25 @@ PIXEL_DREAMERS = {"dreamer_dr": ("Dreamer from pixels + DR", VisualRandomisation
 class Config:
     """Flat recipe config; presets below override fields. Saved as ``config.json``."""
 
-    tasks: list[str] = field(default_factory=lambda: ["cartpole-balance"])
-    seeds: list[int] = field(default_factory=lambda: [0])
-    model_size: str = "compact"
+    tasks: list[str] = field(default_factory=lambda: ["cartpole-balance"])  # control-suite tasks
+    seeds: list[int] = field(default_factory=lambda: [0])  # one chain of stages per task and seed
+    model_size: str = "compact"  # RSSM size of teacher, student and pixel Dreamers
     # online budget: the same environment steps for the teacher and both pixel Dreamers
     env_steps: int = 6000  # measured: 4000 learns on one seed of two, 6000 on the one tried
-    prefill_steps: int = 1000
+    prefill_steps: int = 1000  # random-action steps before the first update
     train_every: int = 2  # teacher: one update per 2 agent steps (measured: 8 does not learn)
     # pixel Dreamers: an update costs ~4x the teacher's on CPU, so they get fewer updates
     # at the default (the paper preset gives every method the same ratio)
-    pixel_train_every: int = 20
-    episode_steps: int = 500
-    slice_len: int = 50
-    slices: int = 16
+    pixel_train_every: int = 20  # pixel Dreamers: one update per this many agent steps
+    episode_steps: int = 500  # steps per training episode
+    slice_len: int = 50  # online Dreamers: steps per training slice
+    slices: int = 16  # online Dreamers: slices per update
     # student (TWIST: slices of 50, imagination horizon 15, action noise 0.3)
-    student_updates: int = 300
-    student_slice_len: int = 50
-    student_slices: int = 8
-    horizon: int = 15
-    action_noise_std: float = 0.3
+    student_updates: int = 300  # student distillation updates on the teacher's data
+    student_slice_len: int = 50  # student: steps per slice
+    student_slices: int = 8  # student: slices per update
+    horizon: int = 15  # imagination horizon (actor-critic and imagined alignment)
+    action_noise_std: float = 0.3  # TWIST's action noise in the imagined rollouts
     imagination_starts: int = 256  # per update, for the actor-critic and Eq. 4
     # The student's pixel encoder and its input augmentation (benchmarks/README.md, TWIST
     # probe). Measured with the supervised probe (900 updates of 128 images): the evaluation's
@@ -98,16 +98,53 @@ class Config:
     student_rotate_deg: float = 0.0  # random in-plane rotation (probe: within noise at 5)
     student_lr: float = 3e-4  # 1e-3: probe better, student return not (186 +- 23 at 900)
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
-    actor_lr: float = 3e-4
-    critic_lr: float = 3e-4
+    actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
+    critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
     # evaluation on held-out scenes
     eval_episodes: int = 10  # measured: with 4, one student scored 209 and 250 on two draws
-    eval_steps: int = 500
-    record: bool = True
-    output_dir: str = "outputs/twist_dmc"
+    eval_steps: int = 500  # steps per evaluation episode
+    record: bool = True  # a rerun recording of one student episode
+    output_dir: str = "outputs/twist_dmc"  # stages, results and plots go here
     # where the networks train and act ("cpu", "cuda", "auto"); envs, rendering and
     # replay stay on the CPU. Not part of the results: a run may resume on another device.
     device: str = "cpu"
+
+    # stages run side by side in this many processes (teacher chain beside the pixel
+    # Dreamers). Not part of the results.
+    jobs: int = min(2, os.cpu_count() or 1)  # 2 on two or more cores
+
+    def __post_init__(self):
+        control = sorted(t for t in TASKS if not TASKS[t].is_robot)
+        unknown = [t for t in self.tasks if t not in control]
+        check(self.tasks and not unknown, "tasks",
+              f"unknown control-suite tasks {unknown or self.tasks}; valid: {control}")
+        check(self.seeds and len(set(self.seeds)) == len(self.seeds), "seeds",
+              f"need distinct seeds, got {self.seeds}")
+        check(self.model_size in RSSM_SIZES, "model_size",
+              f"unknown size {self.model_size!r}; valid: {sorted(RSSM_SIZES)}")
+        check_positive(self, "env_steps", "train_every", "pixel_train_every", "episode_steps",
+                       "slice_len", "slices", "student_slice_len", "student_slices", "horizon",
+                       "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
+                       "actor_lr", "critic_lr", "jobs")
+        check_positive(self, "prefill_steps", "student_updates", "action_noise_std",
+                       "student_shift_pad", "student_rotate_deg", allow_zero=True)
+        check(self.student_depth is None or self.student_depth > 0, "student_depth",
+              f"must be > 0 or None, got {self.student_depth}")
+        check(self.student_norm in PixelEncoder.NORMS, "student_norm",
+              f"must be one of {PixelEncoder.NORMS}, got {self.student_norm!r}")
+        check(self.student_input_norm in PixelEncoder.INPUT_NORMS, "student_input_norm",
+              f"must be one of {PixelEncoder.INPUT_NORMS}, got {self.student_input_norm!r}")
+        check(self.student_shift_per in ("sequence", "frame"), "student_shift_per",
+              f"must be 'sequence' or 'frame', got {self.student_shift_per!r}")
+        for name, build in (("online budget", self.online), ("dreamer", self.dreamer)):
+            try:
+                build()
+            except ValueError as error:
+                raise ConfigError(f"{name}: {error}") from error
+        try:
+            resolve_device(self.device)
+        except ValueError as error:
+            raise ConfigError(f"device: {error}") from error
 
     def online(self, pixels: bool = False) -> OnlineConfig:
         return OnlineConfig(env_steps=self.env_steps, prefill_steps=self.prefill_steps,
@@ -244,7 +281,7 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 
 # -- the recipe -------------------------------------------------------------------------
 def stage_runner(cfg: Config) -> StageRunner:
-    return StageRunner(cfg.output_dir, cfg, runtime_keys=("device",))
+    return StageRunner(cfg.output_dir, cfg, runtime_keys=("device", "jobs"))
 
 
 def _stage(runner: StageRunner, name: str, fn) -> dict:
@@ -278,30 +315,8 @@ def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="default")
-    parser.add_argument("--tasks", nargs="+", help=f"any of {sorted(TASKS)}")
-    parser.add_argument("--seeds", nargs="+", type=int)
-    parser.add_argument("--eval-episodes", type=int)
-    parser.add_argument("--output-dir")
-    parser.add_argument("--device", default="cpu", type=device_argument,
-                        help="where networks train and act: cpu, cuda, cuda:N or auto")
-    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                        help="stages run side by side in this many processes (teacher chain "
-                             "beside the pixel Dreamers; default: 2, or 1 on one core)")
-    args = parser.parse_args(argv)
-    cfg = dataclasses.replace(Config(), **PRESETS[args.preset])
-    overrides = {k: v for k, v in (("tasks", args.tasks), ("seeds", args.seeds),
-                                   ("eval_episodes", args.eval_episodes),
-                                   ("output_dir", args.output_dir)) if v is not None}
-    cfg = dataclasses.replace(cfg, device=args.device, **overrides)
-    unknown = [t for t in cfg.tasks if t not in TASKS or TASKS[t].is_robot]
-    if unknown:
-        parser.error(f"unknown control-suite tasks {unknown}; valid: "
-                     f"{sorted(t for t in TASKS if not TASKS[t].is_robot)}")
-    if args.jobs < 1:
-        parser.error("--jobs must be >= 1")
-    cfg.online()  # validates the budget before any work
+    cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
+                          prog="twist_dmc.py")
     out = Path(cfg.output_dir)
     runner = stage_runner(cfg)  # refuses a different config before any work starts
 
@@ -310,7 +325,7 @@ def main(argv=None):
     chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
                for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
     start = time.perf_counter()
-    run_jobs(chains, args.jobs)
+    run_jobs(chains, cfg.jobs)
 
     results, records = {}, {}
     for task in cfg.tasks:
@@ -336,11 +351,11 @@ def main(argv=None):
     wall = time.perf_counter() - start
     print("\n" + format_table(results))
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
-    print(f"wall time this run: {wall:.0f} s with {args.jobs} process(es)")
+    print(f"wall time this run: {wall:.0f} s with {cfg.jobs} process(es)")
     (out / "results.json").write_text(json.dumps(
         {"config": dataclasses.asdict(cfg), "results": results, "summary": summarise(results),
          "runs": records, "recording": recording, "timings_s": runner.timings,
-         "wall_s": wall, "jobs": args.jobs}, indent=2))
+         "wall_s": wall, "jobs": cfg.jobs}, indent=2))
     plot_results(results, out / "returns.png")
     print(f"wrote {out / 'results.json'} and {out / 'returns.png'}")
     if recording:

@@ -89,3 +89,21 @@ def test_an_unavailable_device_is_a_clear_error_before_any_work(tmp_path):
     proc = _run("--preset", "tiny", "--device", device, "--output-dir", tmp_path / "run")
     assert proc.returncode == 2 and f"device '{device}' asked for" in proc.stderr
     assert not (tmp_path / "run").exists()
+
+
+def test_help_lists_every_config_field_and_bad_values_fail_before_work(tmp_path):
+    import dataclasses
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("twist_dmc_recipe", ROOT / "recipes" / "twist_dmc.py")
+    recipe = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = recipe  # dataclasses resolve annotations through it
+    spec.loader.exec_module(recipe)
+    text = " ".join(_run("--help").stdout.split())
+    for f in dataclasses.fields(recipe.Config):
+        assert "--" + f.name.replace("_", "-") in text, f.name
+    for flags, message in ((["--jobs", "0"], "jobs: must be > 0"),
+                           (["--student-norm", "batch"], "student_norm: must be one of"),
+                           (["--seeds", "1", "1"], "seeds: need distinct seeds")):
+        proc = _run(*flags, "--output-dir", tmp_path / "out")
+        assert proc.returncode == 2 and message in " ".join(proc.stderr.replace("│", " ").split())
+        assert not (tmp_path / "out").exists()
