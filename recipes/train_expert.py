@@ -64,6 +64,9 @@ def main(argv=None):
     parser.add_argument("--updates-per-batch", type=int,
                         default=SACExpertConfig.updates_per_batch,
                         help=f"SAC updates per {SACExpertConfig.frames_per_batch} frames")
+    parser.add_argument("--target", default=None,
+                        help="train in this target domain (an online oracle for it, e.g. "
+                             "`--task quadruped-flat --target slippery_slope`)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
@@ -71,14 +74,15 @@ def main(argv=None):
     cfg = SACExpertConfig(task=args.task, total_frames=args.frames, seed=args.seed,
                           init_from=args.init_from, alpha_init=args.alpha_init,
                           init_random_frames=args.init_random_frames,
-                          updates_per_batch=args.updates_per_batch)
+                          updates_per_batch=args.updates_per_batch, target=args.target)
     path = train_sac_expert(cfg, args.out, progress=not args.no_progress)
     expert = Expert.load(path)
     plot_training_curve(load_checkpoint(path)["curve"], path.parent / "training_curve.png")
     report = {}
     for target in ("sim", "slippery_slope", "foam", "payload", "weak_motors", "laggy"):
         # Transfer is measured on the flat-ground task the targets are defined on.
-        flat = dataclasses.replace(cfg, task="quadruped-flat", dynamics_randomisation=False)
+        flat = dataclasses.replace(cfg, task="quadruped-flat", dynamics_randomisation=False,
+                                   target=None)
         report[target] = evaluate(expert.actor, flat, episodes=6, seed=123,
                                   target=None if target == "sim" else TARGETS[target])
         print(f"{target:15s} return {report[target]['return']:7.1f}   "

@@ -24,7 +24,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.objectives import SACLoss, SoftUpdate
 from tqdm import tqdm
 
-from simdist.envs import DynamicsRandomisation, make_env
+from simdist.envs import DynamicsRandomisation, get_target, make_env
 from simdist.experts.networks import make_actor, make_critic
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.checkpoint import CorruptCheckpointError, load_checkpoint, save_atomic
@@ -68,6 +68,9 @@ class SACExpertConfig:
     eval_episodes: int = 4
     alpha_init: float = 1.0
     init_from: str | None = None
+    # train *in* a named target domain (its fixed dynamics and slope, no randomisation):
+    # an online oracle that measures what a policy can reach there, not a deployable expert
+    target: str | None = None
     seed: int = 0
 
     def __post_init__(self):
@@ -78,9 +81,12 @@ class SACExpertConfig:
             raise ValueError("frames_per_batch must be a multiple of num_envs")
         if not self.alpha_init > 0:
             raise ValueError(f"alpha_init must be > 0, got {self.alpha_init}")
+        if self.target is not None:
+            get_target(self.target)  # an unknown name fails here, naming the valid ones
 
 
 def make_training_env(cfg: SACExpertConfig, seed: int, num_envs: int | None = None, target=None):
+    target = cfg.target if target is None else target
     return make_env(cfg.task, num_envs=num_envs if num_envs is not None else cfg.num_envs,
                     seed=seed, max_episode_steps=cfg.episode_steps, target=target,
                     task_kwargs={"speeds": tuple(cfg.speeds)},
