@@ -46,7 +46,8 @@ from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_error
 from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
-                               mean_metrics, progress_stats, rollout, train_resumable)
+                               mean_metrics, progress_stats, rollout, stage_seed,
+                               train_resumable)
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
@@ -262,7 +263,8 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path)
     history = train_resumable(
         agent.pretrain_update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
         cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim},
-        stage_dir / "training.pt", desc="pretrain world model")
+        stage_dir / "training.pt", desc="pretrain world model",
+        seed=stage_seed(cfg.seed, "pretrain"))
     save_atomic(agent.world_model.state_dict(), stage_dir / "world_model.pt")
     first, last = mean_metrics(history[:50], 50), mean_metrics(history)
     return {"path": str(stage_dir / "world_model.pt"), "obs_dim": obs.shape[-1],
@@ -329,7 +331,8 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     # SimDist: dynamics only, continuing from the previous round's dynamics.
     hist = train_resumable(simdist_agent.finetune_update, sample, cfg.finetune_updates,
                            {"wm": simdist_agent.world_model, "opt": simdist_agent.finetune_optim},
-                           stage_dir / "simdist.ckpt", desc=f"round {k + 1}: finetune dynamics")
+                           stage_dir / "simdist.ckpt", desc=f"round {k + 1}: finetune dynamics",
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/simdist"))
     save_atomic(simdist_agent.world_model.state_dict(), stage_dir / "simdist.pt")
     results["simdist"] = str(stage_dir / "simdist.pt")
     results["simdist_eval"], _ = evaluate_planner(cfg, simdist_agent, cfg.target)
@@ -339,7 +342,8 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     whole = load_agent(cfg, pretrained, previous and previous["whole"])
     hist = train_resumable(whole.finetune_whole_update, sample, cfg.finetune_updates,
                            {"wm": whole.world_model, "opt": whole.whole_optim},
-                           stage_dir / "whole.ckpt", desc=f"round {k + 1}: finetune whole model")
+                           stage_dir / "whole.ckpt", desc=f"round {k + 1}: finetune whole model",
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/whole"))
     save_atomic(whole.world_model.state_dict(), stage_dir / "whole.pt")
     results["whole"] = str(stage_dir / "whole.pt")
     results["whole_eval"], _ = evaluate_planner(cfg, whole, cfg.target)
@@ -352,7 +356,8 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
         sac.load_state_dict(load_checkpoint(previous["sac"])["state"]["sac"])
     sac_buffer = sac.buffer(data)
     hist = train_resumable(sac.update, sac_buffer.sample, cfg.finetune_updates, {"sac": sac},
-                           stage_dir / "sac.ckpt", desc=f"round {k + 1}: continue expert SAC")
+                           stage_dir / "sac.ckpt", desc=f"round {k + 1}: continue expert SAC",
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/sac"))
     results["sac"] = str(stage_dir / "sac.ckpt")
     results["sac_eval"] = evaluate(cfg, cfg.target, sac.expert().deterministic())
     results["sac_loss"] = mean_metrics(hist)
@@ -382,7 +387,8 @@ def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path) ->
 
     history = train_resumable(update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
                               cfg.probe_updates, {"probe": probe, "optim": optim},
-                              stage_dir / "training.pt", desc="probe decoder")
+                              stage_dir / "training.pt", desc="probe decoder",
+                              seed=stage_seed(cfg.seed, "probe"))
     save_atomic(probe.state_dict(), stage_dir / "probe.pt")
     return {"path": str(stage_dir / "probe.pt"), "state_dim": state_dim,
             "loss": mean_metrics(history)}

@@ -44,8 +44,8 @@ from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStuden
 from simdist.envs import TASKS, VisualRandomisation
 from simdist.modules import RSSM_SIZES, DreamerWorldModel, PixelEncoder
 from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
-                               evaluate_returns, load_episodes, mean_metrics, train_dreamer_online,
-                               train_resumable)
+                               evaluate_returns, load_episodes, mean_metrics, stage_seed,
+                               train_dreamer_online, train_resumable)
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
 from simdist.utils import StageRunner, load_checkpoint, resolve_device, run_jobs
 from simdist.utils.cli import ConfigError, check, check_positive, parse_config
@@ -195,7 +195,8 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
     env = control_env(task, seed, pixels=True, visual=VisualRandomisation.training(),
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
     out = train_dreamer_online(agent, env, cfg.online(), stage_dir,
-                               dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}")
+                               dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}",
+                               seed=stage_seed(seed, f"{task}/teacher"))
     env.close()
     return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
@@ -244,7 +245,7 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
     history = train_resumable(twist.update, replay.sample, cfg.student_updates,
                               {"twist": twist}, stage_dir / "student.pt",
                               every=max(1, cfg.student_updates // 10),
-                              desc=f"{stage_dir.name}")
+                              desc=f"{stage_dir.name}", seed=stage_seed(seed, stage_dir.name))
     result = evaluate(cfg, task, seed, twist.policy(), twist.make_primer(), pixels=True)
     return {**result, "checkpoint": str(stage_dir / "student.pt"),
             "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
@@ -256,8 +257,8 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
     env = control_env(task, seed, pixels=True, visual=visual,
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
     out = train_dreamer_online(agent, env, cfg.online(pixels=True), stage_dir,
-                               dreamer_keys("pixels"),
-                               desc=stage_dir.name)
+                               dreamer_keys("pixels"), desc=stage_dir.name,
+                               seed=stage_seed(seed, stage_dir.name))
     env.close()
     result = evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
                       pixels=True)

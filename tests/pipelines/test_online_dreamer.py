@@ -81,3 +81,55 @@ def test_bad_budgets_are_refused():
         OnlineConfig(env_steps=10, prefill_steps=20)
     with pytest.raises(ValueError, match="slice_len"):
         OnlineConfig(episode_steps=10, slice_len=20)
+
+
+@pytest.mark.parametrize("crash_at", [2, 3])  # after episode 2 was stored / before episode 3
+def test_a_seeded_run_resumed_after_a_crash_equals_the_uninterrupted_run(tmp_path, monkeypatch,
+                                                                          crash_at):
+    import simdist.pipelines.online_dreamer as online
+
+    agent, env, config = _setup()
+    full = train_dreamer_online(agent, env, config, tmp_path / "full", dreamer_keys("state"),
+                                progress=False, seed=7)
+    full_weights = _flat(agent.state_dict())
+
+    agent, env, _ = _setup()
+    calls, original = {"n": 0}, online.save_atomic
+
+    def crash(obj, path):
+        calls["n"] += 1
+        if calls["n"] == crash_at:
+            raise KeyboardInterrupt
+        original(obj, path)
+
+    monkeypatch.setattr(online, "save_atomic", crash)
+    with pytest.raises(KeyboardInterrupt):
+        train_dreamer_online(agent, env, config, tmp_path / "resumed", dreamer_keys("state"),
+                             progress=False, seed=7)
+    monkeypatch.setattr(online, "save_atomic", original)
+    torch.rand(1000)  # whatever else the process drew meanwhile must not matter
+    agent, env, _ = _setup()
+    env.set_seed(123)  # nor where the new process's env started
+    resumed = train_dreamer_online(agent, env, config, tmp_path / "resumed",
+                                   dreamer_keys("state"), progress=False, seed=7)
+    assert resumed["episode_returns"] == full["episode_returns"]
+    assert resumed["history"] == full["history"]
+    resumed_weights = _flat(agent.state_dict())
+    assert resumed_weights.keys() == full_weights.keys()
+    for key, value in resumed_weights.items():
+        assert torch.equal(value, full_weights[key]) if torch.is_tensor(value) \
+            else value == full_weights[key], key
+
+
+def _flat(state, prefix=""):
+    """Every leaf of a nested state dict (weights and optimiser states), copied."""
+    out = {}
+    for key, value in state.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        elif isinstance(value, (list, tuple)) and value and isinstance(value[0], dict):
+            for i, item in enumerate(value):
+                out.update(_flat(item, f"{prefix}{key}.{i}."))
+        else:
+            out[prefix + str(key)] = value.clone() if torch.is_tensor(value) else value
+    return out

@@ -64,3 +64,51 @@ def test_non_finite_loss_raises_naming_the_step(tmp_path):
     with pytest.raises(FloatingPointError, match="non-finite \\['loss'\\] at update 0"):
         train_resumable(lambda b: {"loss": float("nan")}, sample, 5, {"m": model},
                         tmp_path / "c.pt", progress=False)
+
+
+def test_global_rng_draws_resume_exactly_and_a_seed_isolates_the_stage(tmp_path):
+    """Samples and updates drawing from torch's global generator (as replay buffers and
+    stochastic losses do) continue after a crash exactly as the uninterrupted run did."""
+
+    def problem():
+        torch.manual_seed(0)  # the same initial weights in both runs
+        model = torch.nn.Linear(3, 1)
+        optim = torch.optim.SGD(model.parameters(), lr=1e-2)
+
+        def sample():
+            x = torch.randn(16, 3)  # global generator
+            return x, x.sum(-1, keepdim=True) + 0.1 * torch.randn(16, 1)
+
+        def update(batch):
+            if crash["at"] is not None and len(crash["seen"]) == crash["at"]:
+                raise KeyboardInterrupt
+            crash["seen"].append(1)
+            x, y = batch
+            loss = (model(x) - y).pow(2).mean()
+            optim.zero_grad()
+            loss.backward()
+            optim.step()
+            return {"loss": loss.item()}
+
+        return model, optim, sample, update
+
+    crash = {"at": None, "seen": []}
+    model, optim, sample, update = problem()
+    torch.manual_seed(11)  # whatever the process drew before this stage...
+    full = train_resumable(update, sample, 30, {"m": model, "o": optim}, tmp_path / "a.pt",
+                           every=10, progress=False, seed=5)
+    full_weights = weights(model)
+
+    crash.update(at=17, seen=[])
+    model, optim, sample, update = problem()
+    torch.manual_seed(99)  # ...does not change a seeded stage
+    with pytest.raises(KeyboardInterrupt):
+        train_resumable(update, sample, 30, {"m": model, "o": optim}, tmp_path / "b.pt",
+                        every=10, progress=False, seed=5)
+    crash.update(at=None, seen=[])
+    model, optim, sample, update = problem()
+    torch.rand(500)  # a new process draws other things before resuming
+    resumed = train_resumable(update, sample, 30, {"m": model, "o": optim}, tmp_path / "b.pt",
+                              every=10, progress=False, seed=5)
+    assert resumed == full
+    assert all(torch.equal(v, full_weights[k]) for k, v in weights(model).items())

@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from simdist.pipelines.control import EpisodeReplay
 from simdist.pipelines.locomotion import rollout
+from simdist.pipelines.resumable import stage_seed
 from simdist.utils import load_checkpoint, load_memmap, save_atomic, save_memmap
 
 
@@ -74,7 +75,8 @@ def load_episodes(stage_dir: str | Path) -> list[TensorDict]:
 
 
 def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path,
-                         keys: list, desc: str = "dreamer", progress: bool = True) -> dict:
+                         keys: list, desc: str = "dreamer", progress: bool = True,
+                         seed: int | None = None) -> dict:
     """Alternates collecting one episode with ``agent`` and ``episode_steps / train_every``
     updates on slices of everything collected so far.
 
@@ -82,6 +84,12 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
     trained on; the agent (weights, optimisers, counters) is checkpointed atomically
     after each episode's updates. Rerunning after a crash reloads the stored episodes,
     restores the agent, and goes on: no episode is collected twice or lost.
+
+    With ``seed``, episode ``i``'s collection (the env's task, dynamics and visual draws,
+    and the policy's exploration noise) and its updates (the replay's slices, the
+    imagination noise) are each seeded from ``(seed, i)``: a run resumed after a crash at
+    any point equals the uninterrupted run on the same device, since nothing depends on
+    random state carried over from before the crash.
 
     Args:
         agent: a :class:`~simdist.agents.DreamerAgent` (its ``policy`` acts, ``update``
@@ -109,6 +117,9 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
     for i in bar:
         path = stage_dir / "episodes" / f"{i:05d}"
         if not path.exists():
+            if seed is not None:
+                env.set_seed(stage_seed(seed, f"episode_{i}/env"))
+                torch.manual_seed(stage_seed(seed, f"episode_{i}/collect"))
             with torch.no_grad():
                 policy = None if i < config.prefill_episodes else agent.policy(explore=True)
                 episode = rollout(env, policy, config.episode_steps)
@@ -118,6 +129,8 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
         if i < trained:
             continue  # collected and trained on before the crash
         returns.append(float(episode["next", "reward"].sum()))
+        if seed is not None:
+            torch.manual_seed(stage_seed(seed, f"episode_{i}/train"))
         for _ in range(updates_per_episode):
             metrics = agent.update(replay.sample())
             bad = [k for k, v in metrics.items()
