@@ -142,3 +142,33 @@ def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_e
             assert point["fraction"] == fractions[0] + fractions[1]  # pooled episodes
             assert point["seed_means"] == pytest.approx([sum(f) / len(f) for f in fractions])
             assert point["ci_fraction"][0] <= point["mean_fraction"] <= point["ci_fraction"][1]
+
+
+@pytest.fixture(scope="module")
+def uninterrupted_tiny_run(tmp_path_factory, tiny_expert):
+    out = tmp_path_factory.mktemp("uninterrupted")
+    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", out)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+@pytest.mark.parametrize("marker", ["stages/pretrain/training.pt", "stages/round_1/simdist.ckpt"])
+def test_a_run_killed_inside_a_stage_resumes_to_the_uninterrupted_results(
+        tmp_path, tiny_expert, uninterrupted_tiny_run, marker):
+    """SIGKILL inside pretraining, and inside a finetuning round between its methods."""
+    from tests.recipes.kill_helpers import run_killed_when
+
+    args = ["--preset", "tiny", "--expert", str(tiny_expert), "--output-dir"]
+    full = uninterrupted_tiny_run
+    killed = tmp_path / "killed"
+    assert run_killed_when([*RECIPE, *args, str(killed)], killed / marker)
+    assert not (killed / "results.json").exists()
+    resumed = _run(*args, killed)
+    assert resumed.returncode == 0, resumed.stderr
+    a = json.loads((full / "results.json").read_text())
+    b = json.loads((killed / "results.json").read_text())
+    assert b["curves"] == a["curves"] and b["pretrain"]["last"] == a["pretrain"]["last"]
+    for name in ("simdist.pt", "whole.pt"):
+        wa = torch.load(full / "stages" / "round_2" / name, weights_only=True)
+        wb = torch.load(killed / "stages" / "round_2" / name, weights_only=True)
+        assert all(torch.equal(wa[k], wb[k]) for k in wa), name

@@ -107,3 +107,22 @@ def test_help_lists_every_config_field_and_bad_values_fail_before_work(tmp_path)
         proc = _run(*flags, "--output-dir", tmp_path / "out")
         assert proc.returncode == 2 and message in " ".join(proc.stderr.replace("│", " ").split())
         assert not (tmp_path / "out").exists()
+
+
+def test_a_run_killed_inside_the_online_teacher_resumes_to_the_uninterrupted_results(tmp_path):
+    from tests.recipes.kill_helpers import run_killed_when
+
+    args = ["--preset", "tiny", "--jobs", "1", "--no-record", "--output-dir"]
+    full = _run(*args, tmp_path / "full")
+    assert full.returncode == 0, full.stderr
+    killed = tmp_path / "killed"
+    # the teacher's second episode is on disk: killed between episodes, mid-stage
+    marker = killed / "stages" / "cartpole-balance_s0_teacher" / "episodes" / "00001"
+    assert run_killed_when([*RECIPE, *args, str(killed)], marker)
+    resumed = _run(*args, killed)
+    assert resumed.returncode == 0, resumed.stderr
+    a = json.loads((tmp_path / "full" / "results.json").read_text())
+    b = json.loads((killed / "results.json").read_text())
+    assert b["results"] == a["results"]
+    assert b["runs"]["cartpole-balance_s0"]["teacher"]["episode_returns"] == \
+        a["runs"]["cartpole-balance_s0"]["teacher"]["episode_returns"]
