@@ -48,6 +48,7 @@ from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, stage_seed,
                                train_resumable)
+from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
@@ -112,6 +113,9 @@ class Config:
     # where the world model and probe train and plan ("cpu", "cuda", "auto"); envs, the
     # dataset, the expert and the SAC baseline stay on the CPU. Not part of the results.
     device: str = "cpu"
+    # scalar logs of every training update under <output_dir>/logs: csv, tensorboard
+    # (needs tensorboard), wandb (offline; needs wandb) or none. Not part of the results.
+    logger: str = "csv"
 
     def __post_init__(self):
         check(self.task in TASKS, "task", f"unknown task {self.task!r}; valid: {sorted(TASKS)}")
@@ -144,6 +148,7 @@ class Config:
             resolve_device(self.device)
         except ValueError as error:
             raise ConfigError(f"device: {error}") from error
+        check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
         visual = [t for t in [self.target, *self.expert_targets] if get_target(t).visual]
         check(not visual, "target", f"{visual} change only what a camera sees; SimDist's "
               "world model observes proprioception and the height scan (use recipes/twist_dmc.py)")
@@ -253,7 +258,8 @@ def term_shares(metrics: dict) -> dict:
     return {k: v / total for k, v in terms.items()}
 
 
-def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path) -> dict:
+def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
+                   logger=None) -> dict:
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
     obs = buffer.storage._storage["observation"]
@@ -264,7 +270,7 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path)
         agent.pretrain_update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
         cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim},
         stage_dir / "training.pt", desc="pretrain world model",
-        seed=stage_seed(cfg.seed, "pretrain"))
+        seed=stage_seed(cfg.seed, "pretrain"), logger=logger, log_prefix="pretrain")
     save_atomic(agent.world_model.state_dict(), stage_dir / "world_model.pt")
     first, last = mean_metrics(history[:50], 50), mean_metrics(history)
     return {"path": str(stage_dir / "world_model.pt"), "obs_dim": obs.shape[-1],
@@ -310,7 +316,7 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
 
 
 def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_dir: Path,
-                previous: dict | None) -> dict:
+                previous: dict | None, logger=None) -> dict:
     """One round: collect with the current SimDist planner, finetune all methods, evaluate."""
     budget = round(cfg.budgets_min[k] * STEPS_PER_MINUTE)
     done_before = previous["target_steps"] if previous else 0
@@ -332,7 +338,8 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     hist = train_resumable(simdist_agent.finetune_update, sample, cfg.finetune_updates,
                            {"wm": simdist_agent.world_model, "opt": simdist_agent.finetune_optim},
                            stage_dir / "simdist.ckpt", desc=f"round {k + 1}: finetune dynamics",
-                           seed=stage_seed(cfg.seed, f"round_{k + 1}/simdist"))
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/simdist"),
+                           logger=logger, log_prefix=f"round_{k + 1}/simdist")
     save_atomic(simdist_agent.world_model.state_dict(), stage_dir / "simdist.pt")
     results["simdist"] = str(stage_dir / "simdist.pt")
     results["simdist_eval"], _ = evaluate_planner(cfg, simdist_agent, cfg.target)
@@ -343,7 +350,8 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     hist = train_resumable(whole.finetune_whole_update, sample, cfg.finetune_updates,
                            {"wm": whole.world_model, "opt": whole.whole_optim},
                            stage_dir / "whole.ckpt", desc=f"round {k + 1}: finetune whole model",
-                           seed=stage_seed(cfg.seed, f"round_{k + 1}/whole"))
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/whole"),
+                           logger=logger, log_prefix=f"round_{k + 1}/whole")
     save_atomic(whole.world_model.state_dict(), stage_dir / "whole.pt")
     results["whole"] = str(stage_dir / "whole.pt")
     results["whole_eval"], _ = evaluate_planner(cfg, whole, cfg.target)
@@ -357,14 +365,16 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     sac_buffer = sac.buffer(data)
     hist = train_resumable(sac.update, sac_buffer.sample, cfg.finetune_updates, {"sac": sac},
                            stage_dir / "sac.ckpt", desc=f"round {k + 1}: continue expert SAC",
-                           seed=stage_seed(cfg.seed, f"round_{k + 1}/sac"))
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/sac"),
+                           logger=logger, log_prefix=f"round_{k + 1}/sac")
     results["sac"] = str(stage_dir / "sac.ckpt")
     results["sac_eval"] = evaluate(cfg, cfg.target, sac.expert().deterministic())
     results["sac_loss"] = mean_metrics(hist)
     return results
 
 
-def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path) -> dict:
+def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path,
+                logger=None) -> dict:
     """A decoder latent -> privileged state on frozen pretrained latents (for pictures).
 
     Dynamics-only finetuning leaves the encoder unchanged, so the probe stays valid for
@@ -388,7 +398,8 @@ def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path) ->
     history = train_resumable(update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
                               cfg.probe_updates, {"probe": probe, "optim": optim},
                               stage_dir / "training.pt", desc="probe decoder",
-                              seed=stage_seed(cfg.seed, "probe"))
+                              seed=stage_seed(cfg.seed, "probe"), logger=logger,
+                              log_prefix="probe")
     save_atomic(probe.state_dict(), stage_dir / "probe.pt")
     return {"path": str(stage_dir / "probe.pt"), "state_dim": state_dim,
             "loss": mean_metrics(history)}
@@ -419,7 +430,9 @@ def run(cfg: Config) -> dict:
     """Every stage of one seed into ``cfg.output_dir``; returns the results it wrote."""
     out = Path(cfg.output_dir)
     # finished stages are skipped when rerun; the device may differ from the first run's
-    runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]), runtime_keys=("device",))
+    runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
+                         runtime_keys=("device", "logger"))
+    logger = make_logger(cfg.logger, out)
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
     def stage(name, fn):
@@ -432,7 +445,7 @@ def run(cfg: Config) -> dict:
                              lambda d: expert_zero_shot_stage(cfg, expert["path"]))
     dataset = stage("dataset", lambda d: dataset_stage(cfg, expert["path"], d))
     pretrained = stage("pretrain", lambda d: pretrain_stage(cfg, dataset["path"],
-                                                            expert["path"], d))
+                                                            expert["path"], d, logger))
     print("pretraining: loss-term shares (last updates) "
           + ", ".join(f"{k[5:]} {100 * v:.0f}%" for k, v in pretrained["term_shares_last"].items())
           + "; held-out latent prediction error / latent variance at steps 1..H: "
@@ -444,11 +457,11 @@ def run(cfg: Config) -> dict:
                 for domain in tqdm(["sim", cfg.target], desc="planner zero-shot")}
 
     planner_zero_shot = stage("zero_shot", zero_shot)
-    probe = stage("probe", lambda d: probe_stage(cfg, dataset["path"], pretrained, d))
+    probe = stage("probe", lambda d: probe_stage(cfg, dataset["path"], pretrained, d, logger))
     rounds, previous = [], None
     for k in range(len(cfg.budgets_min)):
         previous = stage(f"round_{k + 1}", lambda d, k=k, p=previous: round_stage(
-            cfg, k, pretrained, expert["path"], d, p))
+            cfg, k, pretrained, expert["path"], d, p, logger))
         rounds.append(previous)
 
     recordings = stage("recordings",
@@ -464,6 +477,8 @@ def run(cfg: Config) -> dict:
     write_json_atomic(out / "results.json", summary)
     plot_results(results, cfg.target, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
+    if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
+        print(f"training curves: {out / 'training_curves.png'} (scalars in {out / 'logs'})")
     print(f"rerun recordings (open with `rerun FILE`): {recordings['before']}, "
           f"{recordings['after']}")
     return summary

@@ -30,7 +30,6 @@ Usage:
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from dataclasses import dataclass, field
@@ -38,7 +37,6 @@ from pathlib import Path
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
-from tensordict import TensorDict
 
 from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStudent
 from simdist.envs import TASKS, VisualRandomisation
@@ -46,8 +44,10 @@ from simdist.modules import RSSM_SIZES, DreamerWorldModel, PixelEncoder
 from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
                                evaluate_returns, load_episodes, mean_metrics, stage_seed,
                                train_dreamer_online, train_resumable)
+from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
-from simdist.utils import StageRunner, load_checkpoint, resolve_device, run_jobs
+from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_jobs,
+                           write_json_atomic)
 from simdist.utils.cli import ConfigError, check, check_positive, parse_config
 from simdist.viz.student_view import record_student_episode
 
@@ -112,6 +112,9 @@ class Config:
     # stages run side by side in this many processes (teacher chain beside the pixel
     # Dreamers). Not part of the results.
     jobs: int = min(2, os.cpu_count() or 1)  # 2 on two or more cores
+    # scalar logs of every training update under <output_dir>/logs: csv, tensorboard
+    # (needs tensorboard), wandb (offline; needs wandb) or none. Not part of the results.
+    logger: str = "csv"
 
     def __post_init__(self):
         control = sorted(t for t in TASKS if not TASKS[t].is_robot)
@@ -145,6 +148,7 @@ class Config:
             resolve_device(self.device)
         except ValueError as error:
             raise ConfigError(f"device: {error}") from error
+        check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
 
     def online(self, pixels: bool = False) -> OnlineConfig:
         return OnlineConfig(env_steps=self.env_steps, prefill_steps=self.prefill_steps,
@@ -196,7 +200,8 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
     out = train_dreamer_online(agent, env, cfg.online(), stage_dir,
                                dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}",
-                               seed=stage_seed(seed, f"{task}/teacher"))
+                               seed=stage_seed(seed, f"{task}/teacher"),
+                               logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
     return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
@@ -245,7 +250,8 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
     history = train_resumable(twist.update, replay.sample, cfg.student_updates,
                               {"twist": twist}, stage_dir / "student.pt",
                               every=max(1, cfg.student_updates // 10),
-                              desc=f"{stage_dir.name}", seed=stage_seed(seed, stage_dir.name))
+                              desc=f"{stage_dir.name}", seed=stage_seed(seed, stage_dir.name),
+                              logger=make_logger(cfg.logger, cfg.output_dir))
     result = evaluate(cfg, task, seed, twist.policy(), twist.make_primer(), pixels=True)
     return {**result, "checkpoint": str(stage_dir / "student.pt"),
             "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
@@ -258,7 +264,8 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
     out = train_dreamer_online(agent, env, cfg.online(pixels=True), stage_dir,
                                dreamer_keys("pixels"), desc=stage_dir.name,
-                               seed=stage_seed(seed, stage_dir.name))
+                               seed=stage_seed(seed, stage_dir.name),
+                               logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
     result = evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
                       pixels=True)
@@ -282,7 +289,7 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 
 # -- the recipe -------------------------------------------------------------------------
 def stage_runner(cfg: Config) -> StageRunner:
-    return StageRunner(cfg.output_dir, cfg, runtime_keys=("device", "jobs"))
+    return StageRunner(cfg.output_dir, cfg, runtime_keys=("device", "jobs", "logger"))
 
 
 def _stage(runner: StageRunner, name: str, fn) -> dict:
@@ -353,12 +360,14 @@ def main(argv=None):
     print("\n" + format_table(results))
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     print(f"wall time this run: {wall:.0f} s with {cfg.jobs} process(es)")
-    (out / "results.json").write_text(json.dumps(
+    write_json_atomic(out / "results.json",  # a crash mid-write keeps the previous file
         {"config": dataclasses.asdict(cfg), "results": results, "summary": summarise(results),
          "runs": records, "recording": recording, "timings_s": runner.timings,
-         "wall_s": wall, "jobs": cfg.jobs}, indent=2))
+         "wall_s": wall, "jobs": cfg.jobs})
     plot_results(results, out / "returns.png")
     print(f"wrote {out / 'results.json'} and {out / 'returns.png'}")
+    if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
+        print(f"training curves: {out / 'training_curves.png'} (scalars in {out / 'logs'})")
     if recording:
         print(f"rerun recording (open with `rerun FILE`): {recording['path']}")
 

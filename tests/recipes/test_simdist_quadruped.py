@@ -54,6 +54,11 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     assert any(not torch.equal(v, pretrained[k]) for k, v in whole.items() if k.startswith("encoder"))
     for name in ("rerun_before.rrd", "rerun_after.rrd"):
         assert (tmp_path / name).stat().st_size > 0
+    # every training loop logged its updates (TorchRL CSV logger) and the curves are drawn
+    for scalar in ("pretrain/loss_consistency", "round_2/simdist/loss_consistency",
+                   "round_2/whole/loss_consistency", "round_2/sac/loss_actor"):
+        assert (tmp_path / "logs" / "scalars" / f"{scalar}.csv").exists(), scalar
+    assert (tmp_path / "training_curves.png").stat().st_size > 0
 
     again = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
     assert again.returncode == 0 and again.stdout.count("already done") == len(stages) + 2

@@ -51,6 +51,12 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert "/student/view" in paths and "/latent/belief_distance" in paths
     assert any(p.startswith("/state/from_student_latent/") for p in paths)
 
+    # every training loop logged its updates, from both worker processes
+    scalars = tmp_path / "logs" / "scalars"
+    assert (scalars / "cartpole-balance_s0_twist" / "loss_distill.csv").exists() or \
+        list((scalars / "cartpole-balance_s0_twist").glob("*.csv"))
+    assert list((scalars / "cartpole-balance_s0_dreamer_dr").glob("*.csv"))
+    assert (tmp_path / "training_curves.png").stat().st_size > 0
     # stages ran in two processes (the teacher chain beside the pixel Dreamers)
     assert results["jobs"] == 2 and "wall time this run" in proc.stdout
 

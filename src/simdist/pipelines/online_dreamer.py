@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from simdist.pipelines.control import EpisodeReplay
 from simdist.pipelines.locomotion import rollout
+from simdist.pipelines.experiment_log import log_metrics
 from simdist.pipelines.resumable import stage_seed
 from simdist.utils import load_checkpoint, load_memmap, save_atomic, save_memmap
 
@@ -76,7 +77,7 @@ def load_episodes(stage_dir: str | Path) -> list[TensorDict]:
 
 def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path,
                          keys: list, desc: str = "dreamer", progress: bool = True,
-                         seed: int | None = None) -> dict:
+                         seed: int | None = None, logger=None) -> dict:
     """Alternates collecting one episode with ``agent`` and ``episode_steps / train_every``
     updates on slices of everything collected so far.
 
@@ -90,6 +91,9 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
     imagination noise) are each seeded from ``(seed, i)``: a run resumed after a crash at
     any point equals the uninterrupted run on the same device, since nothing depends on
     random state carried over from before the crash.
+
+    With a TorchRL ``logger``, each update's metrics and each episode's return are logged
+    under ``desc/``.
 
     Args:
         agent: a :class:`~simdist.agents.DreamerAgent` (its ``policy`` acts, ``update``
@@ -129,6 +133,7 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
         if i < trained:
             continue  # collected and trained on before the crash
         returns.append(float(episode["next", "reward"].sum()))
+        log_metrics(logger, desc, {"episode_return": returns[-1]}, len(history))
         if seed is not None:
             torch.manual_seed(stage_seed(seed, f"episode_{i}/train"))
         for _ in range(updates_per_episode):
@@ -139,6 +144,7 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
                 raise FloatingPointError(f"{desc}: non-finite {bad} after episode {i}; last "
                                          f"checkpoint kept at {checkpoint}")
             history.append(metrics)
+            log_metrics(logger, desc, metrics, len(history))
         save_atomic({"agent": agent.state_dict(), "episodes": i + 1, "history": history,
                      "returns": returns}, checkpoint)
         bar.set_postfix(episode_return=f"{returns[-1]:.0f}",

@@ -10,6 +10,7 @@ from typing import Callable
 import torch
 from tqdm import tqdm
 
+from simdist.pipelines.experiment_log import log_metrics
 from simdist.utils.checkpoint import load_checkpoint, save_atomic
 
 
@@ -29,7 +30,8 @@ def stage_seed(seed: int, name: str) -> int:
 
 def train_resumable(update: Callable, sample: Callable, updates: int, state: dict,
                     checkpoint: str | Path, every: int = 500, desc: str = "train",
-                    progress: bool = True, seed: int | None = None) -> list[dict]:
+                    progress: bool = True, seed: int | None = None, logger=None,
+                    log_prefix: str | None = None) -> list[dict]:
     """Calls ``update(sample())`` ``updates`` times, checkpointing ``state`` atomically.
 
     ``state`` maps names to objects with ``state_dict``/``load_state_dict`` (modules,
@@ -42,6 +44,9 @@ def train_resumable(update: Callable, sample: Callable, updates: int, state: dic
     global RNG state (what ``sample`` and ``update`` draw from), restored on resume; with
     ``seed``, a fresh start seeds that generator first (see :func:`stage_seed`), so the
     result does not depend on what ran earlier in the process either.
+
+    With a TorchRL ``logger`` (see :mod:`simdist.pipelines.experiment_log`), every
+    update's metrics are logged as ``<log_prefix or desc>/<metric>`` at its step.
 
     Returns:
         The metrics of every update (restored ones included).
@@ -87,6 +92,7 @@ def train_resumable(update: Callable, sample: Callable, updates: int, state: dic
             raise FloatingPointError(f"{desc}: non-finite {bad} at update {len(history)}; "
                                      f"last checkpoint kept at {checkpoint}")
         history.append(metrics)
+        log_metrics(logger, log_prefix or desc, metrics, len(history))
         bar.update(1)
         if len(history) % every == 0 or len(history) == updates:
             save()
