@@ -39,7 +39,7 @@ from tqdm import tqdm
 from simdist.agents import SimDistAgent, SimDistConfig
 from simdist.data import DatasetConfig, generate_dataset, generate_shard, load_dataset
 from simdist.data.dataset import read_dataset_meta
-from simdist.envs import TARGETS, TASKS, describe_ranges, get_target
+from simdist.envs import TASKS, describe_ranges, get_target
 from simdist.experts import Expert, SACExpertConfig, train_sac_expert
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder
 from simdist.objectives import ProbeLoss
@@ -71,7 +71,9 @@ class Config:
 
     task: str = "quadruped-flat"  # evaluation task; a target sets its own slope
     data_task: str = "quadruped-terrain"  # expert retraining and the dataset: mixed slopes
-    target: str = "slippery_slope"  # deployment target (simdist.envs.TARGETS)
+    # deployment target: a name in simdist.envs.TARGETS, a JSON object of TargetDomain
+    # fields ('{"name": "icy", "friction": 0.4}') or the path of a .json file holding one
+    target: str = "slippery_slope"
     expert: str = DEFAULT_EXPERT  # expert checkpoint (SAC, recipes/train_expert.py)
     retrain_expert: bool = False  # retrain the expert on data_task (hours on 2 CPU cores)
     expert_frames: int = SACExpertConfig.total_frames  # SAC frames when retraining
@@ -122,8 +124,11 @@ class Config:
         check(self.data_task in TASKS, "data_task",
               f"unknown task {self.data_task!r}; valid: {sorted(TASKS)}")
         for name, targets in (("target", [self.target]), ("expert_targets", self.expert_targets)):
-            unknown = [t for t in targets if t not in TARGETS]
-            check(not unknown, name, f"unknown targets {unknown}; valid: {sorted(TARGETS)}")
+            for target in targets:  # a registered name, a JSON object or a .json file
+                try:
+                    get_target(target)
+                except (ValueError, TypeError) as error:
+                    raise ConfigError(f"{name}: {error}") from error
         check(self.model_size in SIMDIST_SIZES, "model_size",
               f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
@@ -468,14 +473,14 @@ def run(cfg: Config) -> dict:
                        lambda d: recording_stage(cfg, pretrained, probe, rounds[-1], out))
     results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds)
     runner.close()
-    print_table(results, cfg.target)
+    print_table(results, get_target(cfg.target).name)
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     summary = {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
                "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
                "planner_zero_shot": planner_zero_shot, "probe": probe,
                "recordings": recordings, "curves": results, "timings_s": runner.timings}
     write_json_atomic(out / "results.json", summary)
-    plot_results(results, cfg.target, out / "forward_progress.png")
+    plot_results(results, get_target(cfg.target).name, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
         print(f"training curves: {out / 'training_curves.png'} (scalars in {out / 'logs'})")
@@ -492,11 +497,11 @@ def run_seeds(cfg: Config) -> dict:
     curves = aggregate_seeds([r["curves"] for r in per_seed])
     print(f"\n{len(cfg.seeds)} seeds {cfg.seeds} (statistics over all their episodes; "
           "'seeds' gives each seed's mean)")
-    print_table(curves, cfg.target)
+    print_table(curves, get_target(cfg.target).name)
     summary = {"config": dataclasses.asdict(cfg), "seeds": cfg.seeds, "curves": curves,
                "per_seed": {str(s): str(out / f"seed_{s}" / "results.json") for s in cfg.seeds}}
     write_json_atomic(out / "results.json", summary)
-    plot_results(curves, cfg.target, out / "forward_progress.png")
+    plot_results(curves, get_target(cfg.target).name, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     return summary
 

@@ -89,7 +89,7 @@ def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert):
 
 def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path):
     proc = _run("--target", "moon", "--output-dir", tmp_path / "a")
-    assert proc.returncode != 0 and "unknown targets ['moon']" in proc.stderr
+    assert proc.returncode != 0 and "unknown target domain 'moon'" in proc.stderr
     proc = _run("--preset", "tiny", "--expert", tmp_path / "none.pt", "--output-dir", tmp_path / "b")
     assert proc.returncode != 0 and "recipes/train_expert.py" in proc.stderr
     proc = _run("--preset", "tiny", "--device", "tpu9", "--output-dir", tmp_path / "c")
@@ -131,9 +131,11 @@ def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, mes
 
 
 def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_expert):
+    icy = '{"name": "icy_ramp", "friction": 0.4, "slope_deg": 6.0}'  # a custom target
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--seeds", 0, 1,
-                "--budgets-min", 0.02, "--output-dir", tmp_path)
+                "--budgets-min", 0.02, "--target", icy, "--output-dir", tmp_path)
     assert proc.returncode == 0, proc.stderr
+    assert "Forward progress in icy_ramp" in proc.stdout
     per_seed = [json.loads((tmp_path / f"seed_{s}" / "results.json").read_text())
                 for s in (0, 1)]
     assert [r["config"]["seed"] for r in per_seed] == [0, 1]

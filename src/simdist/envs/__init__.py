@@ -12,8 +12,9 @@ from simdist.envs.layout import Layout
 from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
 from simdist.rendering import RenderingUnavailableError
 from simdist.envs.targets import PRESETS as TARGETS
+from simdist.envs.targets import register_target
 from simdist.envs.targets import TargetDomain, describe_ranges, get_target
-from simdist.envs.tasks import TASKS, TaskSpec, get_task
+from simdist.envs.tasks import TASKS, TaskSpec, get_task, register_task
 from simdist.envs.textures import ColourBank, TextureBank
 
 
@@ -33,5 +34,5 @@ __all__ = [
     "SimDistEnv", "make_env", "Layout", "DynamicsParams", "DynamicsRandomisation",
     "VisualRandomisation", "RenderingUnavailableError", "TARGETS", "TargetDomain",
     "describe_ranges", "get_target", "TASKS", "TaskSpec", "get_task", "TextureBank",
-    "ColourBank",
+    "ColourBank", "register_task", "register_target",
 ]

@@ -10,7 +10,9 @@ action latency, slope geometry, and optionally a visual setting. Named presets l
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from pathlib import Path
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -89,13 +91,42 @@ PRESETS: dict[str, TargetDomain] = {
 }
 
 
+def register_target(target: TargetDomain, overwrite: bool = False) -> TargetDomain:
+    """Adds ``target`` to the named targets (``--target NAME`` in the recipes).
+
+    Examples:
+        >>> register_target(TargetDomain(name="icy_ramp", friction=0.4, slope_deg=6.0)).name
+        'icy_ramp'
+        >>> get_target("icy_ramp").friction
+        0.4
+        >>> register_target(TargetDomain(name="icy_ramp"))
+        Traceback (most recent call last):
+        ...
+        ValueError: target 'icy_ramp' is already registered; pass overwrite=True to replace it
+        >>> _ = PRESETS.pop("icy_ramp")
+    """
+    if not isinstance(target, TargetDomain):
+        raise TypeError(f"register_target takes a TargetDomain, got {type(target).__name__}")
+    if target.name in PRESETS and not overwrite:
+        raise ValueError(f"target {target.name!r} is already registered; pass overwrite=True "
+                         "to replace it")
+    PRESETS[target.name] = target
+    return target
+
+
 def get_target(target: str | TargetDomain | Mapping[str, Any] | None) -> TargetDomain:
     """Resolves a preset name, a dict of :class:`TargetDomain` fields, or a ``TargetDomain``.
+
+    A string may also be a JSON object of fields or the path of a ``.json`` file holding
+    one: that is how a custom target is given on a recipe's command line
+    (``--target '{"name": "icy", "friction": 0.4}'``).
 
     Examples:
         >>> target = get_target({"friction": 0.3, "slope_deg": 5.0})
         >>> target.name, target.friction, target.slope_deg
         ('custom', 0.3, 5.0)
+        >>> get_target('{"name": "icy", "friction": 0.4}').friction
+        0.4
     """
     if target is None:
         return SIM
@@ -108,6 +139,8 @@ def get_target(target: str | TargetDomain | Mapping[str, Any] | None) -> TargetD
             raise ValueError(f"unknown TargetDomain field(s) {unknown} in target dict; valid: "
                              f"{sorted(fields)}")
         return TargetDomain(**target)
+    if isinstance(target, str) and (target.lstrip().startswith("{") or target.endswith(".json")):
+        return get_target(_read_target_json(target))
     if not isinstance(target, str):
         raise TypeError(f"target must be a preset name, a dict of TargetDomain fields or a "
                         f"TargetDomain, got {type(target).__name__}")
@@ -115,6 +148,22 @@ def get_target(target: str | TargetDomain | Mapping[str, Any] | None) -> TargetD
         raise ValueError(f"unknown target domain {target!r}; valid presets: "
                          f"{', '.join(sorted(PRESETS))} (or pass a TargetDomain)")
     return PRESETS[target]
+
+
+def _read_target_json(text: str) -> dict:
+    source = "target JSON"
+    if not text.lstrip().startswith("{"):
+        path = Path(text)
+        if not path.is_file():
+            raise ValueError(f"target file {text!r} does not exist")
+        source, text = f"target file {str(path)!r}", path.read_text()
+    try:
+        fields = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{source} is not valid JSON: {error}") from error
+    if not isinstance(fields, dict):
+        raise ValueError(f"{source} must be a JSON object of TargetDomain fields")
+    return fields
 
 
 def describe_ranges(training: DynamicsRandomisation | None = None) -> str:

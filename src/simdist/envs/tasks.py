@@ -106,6 +106,40 @@ TASKS["quadruped-terrain"] = TaskSpec(
     max_episode_steps=500, camera_id=2, is_robot=True, supports_slope=True)
 
 
+def register_task(spec: TaskSpec, overwrite: bool = False) -> TaskSpec:
+    """Adds ``spec`` to :data:`TASKS` under ``spec.name``, so that ``make_env``, the
+    dataset generator and the recipes (``--task`` / ``--data-task``) accept it.
+
+    ``spec.build(target, seed, **task_kwargs)`` returns ``(physics, task,
+    n_sub_steps)`` for a dm_control ``Physics`` and ``Task``; a robot task
+    (``is_robot=True``) also provides the layout protocol the SimDist pipeline reads
+    (``observation_layout``, ``state_layout``, ``forward_progress``; see
+    ``simdist.envs.quadruped.QuadrupedLocomotion``, the one robot task so far).
+
+    Raises:
+        ValueError: the name is taken (pass ``overwrite=True`` to replace it) or is not
+            of the ``"<domain>-<task>"`` form.
+
+    Examples:
+        >>> spec = TaskSpec("cartpole-swingup", _suite_builder("cartpole", "swingup"),
+        ...                 action_repeat=2, max_episode_steps=500, camera_id=0)
+        >>> register_task(spec).name in TASKS
+        True
+        >>> register_task(spec)
+        Traceback (most recent call last):
+        ...
+        ValueError: task 'cartpole-swingup' is already registered; pass overwrite=True to replace it
+        >>> _ = TASKS.pop("cartpole-swingup")
+    """
+    if "-" not in spec.name:
+        raise ValueError(f"task names are '<domain>-<task>', got {spec.name!r}")
+    if spec.name in TASKS and not overwrite:
+        raise ValueError(f"task {spec.name!r} is already registered; pass overwrite=True "
+                         "to replace it")
+    TASKS[spec.name] = spec
+    return spec
+
+
 def get_task(name: str) -> TaskSpec:
     """Looks up a task, with an error listing the valid names."""
     if name not in TASKS:
