@@ -52,7 +52,7 @@ from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
-from simdist.utils.cli import ConfigError, check, check_positive, parse_config
+from simdist.utils.cli import check, check_builds, check_positive, parse_config
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -125,10 +125,7 @@ class Config:
               f"unknown task {self.data_task!r}; valid: {sorted(TASKS)}")
         for name, targets in (("target", [self.target]), ("expert_targets", self.expert_targets)):
             for target in targets:  # a registered name, a JSON object or a .json file
-                try:
-                    get_target(target)
-                except (ValueError, TypeError) as error:
-                    raise ConfigError(f"{name}: {error}") from error
+                check_builds(name, get_target, target)
         check(self.model_size in SIMDIST_SIZES, "model_size",
               f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
@@ -144,15 +141,9 @@ class Config:
               and all(a < b for a, b in zip(self.budgets_min, self.budgets_min[1:])),
               "budgets_min", f"must be positive and increasing, got {self.budgets_min}")
         check(len(set(self.seeds)) == len(self.seeds), "seeds", f"repeated seeds {self.seeds}")
-        for name, build in (("planner_*", self.planner), ("dataset_*", lambda: dataset_config(self))):
-            try:
-                build()
-            except ValueError as error:
-                raise ConfigError(f"{name}: {error}") from error
-        try:
-            resolve_device(self.device)
-        except ValueError as error:
-            raise ConfigError(f"device: {error}") from error
+        check_builds("planner_*", self.planner)
+        check_builds("dataset_*", dataset_config, self)
+        check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
         visual = [t for t in [self.target, *self.expert_targets] if get_target(t).visual]
         check(not visual, "target", f"{visual} change only what a camera sees; SimDist's "

@@ -48,7 +48,7 @@ from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
 from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_jobs,
                            write_json_atomic)
-from simdist.utils.cli import ConfigError, check, check_positive, parse_config
+from simdist.utils.cli import check, check_builds, check_positive, parse_config
 from simdist.viz.student_view import record_student_episode
 
 TWIST = "TWIST (student)"
@@ -139,15 +139,9 @@ class Config:
               f"must be one of {PixelEncoder.INPUT_NORMS}, got {self.student_input_norm!r}")
         check(self.student_shift_per in ("sequence", "frame"), "student_shift_per",
               f"must be 'sequence' or 'frame', got {self.student_shift_per!r}")
-        for name, build in (("online budget", self.online), ("dreamer", self.dreamer)):
-            try:
-                build()
-            except ValueError as error:
-                raise ConfigError(f"{name}: {error}") from error
-        try:
-            resolve_device(self.device)
-        except ValueError as error:
-            raise ConfigError(f"device: {error}") from error
+        check_builds("online budget", self.online)
+        check_builds("dreamer", self.dreamer)
+        check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
 
     def online(self, pixels: bool = False) -> OnlineConfig:

@@ -43,6 +43,23 @@ def check(condition: bool, field: str, message: str) -> None:
         raise ConfigError(f"{field}: {message}")
 
 
+def check_builds(field: str, build, *args) -> None:
+    """Calls ``build(*args)`` (a constructor or validator with its own messages) and turns
+    its ``ValueError``/``TypeError`` into a :class:`ConfigError` naming ``field``.
+
+    Examples:
+        >>> check_builds("device", int, "3")
+        >>> check_builds("device", int, "tpu")
+        Traceback (most recent call last):
+        ...
+        simdist.utils.cli.ConfigError: device: invalid literal for int() with base 10: 'tpu'
+    """
+    try:
+        build(*args)
+    except (ValueError, TypeError) as error:
+        raise ConfigError(f"{field}: {error}") from error
+
+
 def check_positive(config: Any, *fields: str, allow_zero: bool = False) -> None:
     """Each named field of ``config`` is a number > 0 (or >= 0 with ``allow_zero``)."""
     for name in fields:
