@@ -9,7 +9,10 @@ the filtering state ``(belief, stoch, previous action)`` rides in the TensorDict
 
 from __future__ import annotations
 
+import dataclasses
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -17,6 +20,9 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import TensorDictPrimer
 
+from simdist.agents import checkpoint as ckpt_format
+from simdist.agents.action_spec import action_bounds
+from simdist.agents.describe import build_dreamer_model, describe_dreamer_model
 from simdist.modules import Actor, DreamerWorldModel, ScalarHead
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss
@@ -150,7 +156,16 @@ class DreamerAgent:
         return cls(DreamerWorldModel.pixel_dreamer(action_dim, config.size), action_dim,
                    config, obs_key="pixels")
 
-    def policy(self, explore: bool = True) -> DreamerPolicy:
+    def policy(self, explore: bool = True, action_spec=None) -> DreamerPolicy:
+        """The recurrent acting policy (reads ``self.obs_key``; needs ``make_primer()``).
+
+        Args:
+            explore: add ``config.exploration_noise`` (collection) or not (evaluation).
+            action_spec: the env's TorchRL action spec, checked against the actor's range:
+                a Dreamer actor acts in ``[-1, 1]`` (tanh), the range it was trained in,
+                so an env with other bounds is refused here rather than clipped silently.
+        """
+        check_unit_box(action_spec)
         return DreamerPolicy(self.world_model, self.actor, self.obs_key, self.obs_event_dims,
                              self.config.exploration_noise, explore)
 
@@ -185,6 +200,81 @@ class DreamerAgent:
         for name in ("model_optim", "actor_optim", "critic_optim"):
             getattr(self, name).load_state_dict(state[name])
 
+    # -- self-describing checkpoints --------------------------------------------------
+    def describe(self) -> dict:
+        """What rebuilds this agent untrained: config fields, world-model parts, obs key."""
+        return {"agent": dataclasses.asdict(self.config),
+                "world_model": describe_dreamer_model(self.world_model), "obs_key": self.obs_key}
+
+    def weights(self) -> dict:
+        """Every network's state dict (target critic included), no optimiser state."""
+        return {"world_model": self.world_model.state_dict(), "actor": self.actor.state_dict(),
+                "critic": self.critic.state_dict(),
+                "target_critic": self.behaviour_loss.target_critic.state_dict()}
+
+    def save(self, path: str | os.PathLike, optimisers: bool = True,
+             meta: dict | None = None) -> Path:
+        """Writes one self-describing file (:mod:`simdist.agents.checkpoint`) that
+        :meth:`load` reads back with no other file or code: the config and sizes, the
+        weights and (``optimisers=True``) the optimiser states to continue training.
+        ``meta`` is free-form plain data (e.g. ``{"task": "cartpole-balance"}``).
+
+        Examples:
+            >>> import tempfile
+            >>> agent = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+            >>> path = agent.save(Path(tempfile.mkdtemp()) / "teacher.pt")
+            >>> loaded = DreamerAgent.load(path)
+            >>> loaded.config == agent.config, torch.equal(loaded.actor.net[0].weight,
+            ...                                            agent.actor.net[0].weight)
+            (True, True)
+        """
+        optim = {name: getattr(self, name).state_dict()
+                 for name in ("model_optim", "actor_optim", "critic_optim")}
+        return ckpt_format.write_agent_checkpoint(path, "DreamerAgent", self.describe(),
+                                                  self.weights(), optim if optimisers else None,
+                                                  meta)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, map_location=None) -> DreamerAgent:
+        """Rebuilds an agent from a file :meth:`save` wrote (weights-only load).
+
+        Args:
+            path: the file.
+            map_location: device for the agent (default: the CPU).
+
+        Raises:
+            FileNotFoundError, CorruptCheckpointError: naming the file (see
+                :func:`~simdist.agents.checkpoint.read_agent_checkpoint`).
+        """
+        ckpt = ckpt_format.read_agent_checkpoint(path, expected="DreamerAgent")
+        return cls.from_checkpoint(ckpt, path, map_location)
+
+    @classmethod
+    def from_config(cls, config: dict, path="<checkpoint>") -> DreamerAgent:
+        """An untrained agent from :meth:`describe`'s dict (errors name ``path``)."""
+        wm = ckpt_format.build("world model", build_dreamer_model,
+                               ckpt_format.part(config, path, "world_model"), path)
+        agent_config = ckpt_format.config_from_dict(
+            DreamerConfig, ckpt_format.part(config, path, "agent"), path, "DreamerConfig")
+        obs_key = ckpt_format.part(config, path, "obs_key")
+        return cls(wm, wm.rssm.action_dim, agent_config, obs_key=obs_key)
+
+    def load_weights(self, weights: dict, path="<checkpoint>") -> None:
+        """Loads :meth:`weights`' dict (strict; errors name ``path`` and the part)."""
+        for name, module in (("world_model", self.world_model), ("actor", self.actor),
+                             ("critic", self.critic),
+                             ("target_critic", self.behaviour_loss.target_critic)):
+            ckpt_format.load_weights(module, ckpt_format.part(weights, path, name), path, name)
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict, path="<checkpoint>", map_location=None) -> DreamerAgent:
+        """An agent from a validated checkpoint dict (see :meth:`load`)."""
+        agent = cls.from_config(ckpt["config"], path)
+        agent.load_weights(ckpt["weights"], path)
+        ckpt_format.load_optimisers(agent, ckpt, ("model_optim", "actor_optim", "critic_optim"), path)
+        agent.checkpoint_meta = dict(ckpt.get("meta", {}))
+        return agent.to(map_location) if map_location is not None else agent
+
     def make_primer(self) -> TensorDictPrimer:
         rssm = self.world_model.rssm
         return TensorDictPrimer(Composite({"agent": Composite({
@@ -209,3 +299,23 @@ class DreamerAgent:
         self._step(behaviour["loss_critic"], self.critic_optim, list(self.critic.parameters()))
         self.behaviour_loss.update_target()
         return {k: v.item() for k, v in (*model_out.items(), *behaviour.items())}
+
+
+def check_unit_box(action_spec) -> None:
+    """Raises ``ValueError`` unless ``action_spec`` (if given) bounds actions to ``[-1, 1]``.
+
+    Examples:
+        >>> from torchrl.data import Bounded
+        >>> check_unit_box(Bounded(-1.0, 1.0, (2,)))
+        >>> check_unit_box(Bounded(-2.0, 2.0, (2,)))
+        Traceback (most recent call last):
+        ...
+        ValueError: a Dreamer actor acts in [-1, 1] (tanh), but action_spec bounds are [-2.0, -2.0] and [2.0, 2.0]; train and act in an env whose actions are normalised to [-1, 1]
+    """
+    if action_spec is None:
+        return
+    low, high = action_bounds(action_spec)
+    if not (torch.equal(low, -torch.ones_like(low)) and torch.equal(high, torch.ones_like(high))):
+        raise ValueError(f"a Dreamer actor acts in [-1, 1] (tanh), but action_spec bounds are "
+                         f"{low.tolist()} and {high.tolist()}; train and act in an env whose "
+                         "actions are normalised to [-1, 1]")

@@ -10,7 +10,10 @@ per-joint action bounds.
 
 from __future__ import annotations
 
+import dataclasses
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -18,6 +21,9 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import TensorDictPrimer
 
+from simdist.agents import checkpoint as ckpt_format
+from simdist.agents.action_spec import action_bounds
+from simdist.agents.describe import build_simdist_model, describe_simdist_model
 from simdist.modules import SimDistWorldModel
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.objectives import DynamicsFinetuneLoss, SimDistPretrainLoss
@@ -117,8 +123,11 @@ class SimDistAgent:
         True
     """
 
-    def __init__(self, world_model: SimDistWorldModel, config: SimDistConfig = SimDistConfig()):
+    def __init__(self, world_model: SimDistWorldModel, config: SimDistConfig = SimDistConfig(),
+                 planner_config: PlannerConfig | None = None):
         self.world_model, self.config = world_model, config
+        # the planner :meth:`policy` uses by default; saved with the agent
+        self.planner_config = planner_config
         self.pretrain_loss = SimDistPretrainLoss(world_model, horizon=config.horizon,
                                                  bc_weight=config.bc_weight,
                                                  value_weight=config.value_weight)
@@ -169,13 +178,102 @@ class SimDistAgent:
         self._apply(out["loss_consistency"], self.whole_optim)
         return {k: v.item() for k, v in out.items()}
 
-    def policy(self, action_low, action_high, config: PlannerConfig = PlannerConfig(),
-               seed: int = 0, compile: bool = False) -> SimDistPolicy:
-        """A planning policy over this world model within the given action bounds."""
+    def policy(self, action_low=None, action_high=None, config: PlannerConfig | None = None,
+               seed: int = 0, compile: bool = False, *, action_spec=None) -> SimDistPolicy:
+        """A planning policy over this world model within the env's action bounds.
+
+        Args:
+            action_low, action_high: per-dimension bounds ``[A]``; or give
+            action_spec: the env's TorchRL action spec instead (``env.action_spec``,
+                batched or not; see :func:`~simdist.agents.action_spec.action_bounds`).
+                With neither, the planner config's scalar bounds apply.
+            config: the planner (default: ``self.planner_config``, which :meth:`load`
+                restores, else ``PlannerConfig()``).
+            seed: seeds the planner's sampling noise.
+            compile: ``torch.compile`` the planning loop.
+
+        Examples:
+            >>> from torchrl.data import Bounded
+            >>> agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny"))
+            >>> policy = agent.policy(action_spec=Bounded(-0.5, 0.5, (8, 3)))
+            >>> policy.planner.action_high
+            tensor([0.5000, 0.5000, 0.5000])
+        """
+        if action_spec is not None:
+            if action_low is not None or action_high is not None:
+                raise ValueError("pass action_spec or action_low/action_high, not both")
+            action_low, action_high = action_bounds(action_spec)
+        elif (action_low is None) != (action_high is None):
+            raise ValueError("pass both action_low and action_high (or an action_spec)")
+        config = config or self.planner_config or PlannerConfig()
         planner = LatentMPPIPlanner.from_world_model(
             self.world_model, config, seed=seed, compile=compile,
-            action_bounds=(action_low, action_high))
+            action_bounds=None if action_low is None else (action_low, action_high))
         return SimDistPolicy(self.world_model, planner).to(self.device)
+
+    # -- self-describing checkpoints --------------------------------------------------
+    def describe(self) -> dict:
+        """What rebuilds this agent untrained: config fields, model sizes, planner."""
+        planner = self.planner_config
+        return {"agent": dataclasses.asdict(self.config),
+                "world_model": describe_simdist_model(self.world_model),
+                "planner": None if planner is None else dataclasses.asdict(planner)}
+
+    def save(self, path: str | os.PathLike, optimisers: bool = True,
+             meta: dict | None = None) -> Path:
+        """Writes one self-describing file (:mod:`simdist.agents.checkpoint`) that
+        :meth:`load` reads back with no other file or code: sizes, configs (the planner's
+        too), weights (encoder normalisation included) and, with ``optimisers``, the
+        optimiser states. ``meta`` is free-form plain data (e.g. the task).
+
+        Examples:
+            >>> import tempfile
+            >>> agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny"),
+            ...                      planner_config=PlannerConfig(horizon=2, num_samples=8,
+            ...                                                   num_elites=2))
+            >>> path = agent.save(Path(tempfile.mkdtemp()) / "simdist.pt")
+            >>> loaded = SimDistAgent.load(path)
+            >>> loaded.planner_config.horizon, loaded.world_model.encoder.history
+            (2, 2)
+        """
+        optim = {name: getattr(self, name).state_dict()
+                 for name in ("pretrain_optim", "finetune_optim", "whole_optim")}
+        return ckpt_format.write_agent_checkpoint(
+            path, "SimDistAgent", self.describe(), {"world_model": self.world_model.state_dict()},
+            optim if optimisers else None, meta)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, map_location=None) -> SimDistAgent:
+        """Rebuilds an agent from a file :meth:`save` wrote (weights-only load).
+
+        Args:
+            path: the file.
+            map_location: device for the agent (default: the CPU).
+
+        Raises:
+            FileNotFoundError, CorruptCheckpointError: naming the file (see
+                :func:`~simdist.agents.checkpoint.read_agent_checkpoint`).
+        """
+        ckpt = ckpt_format.read_agent_checkpoint(path, expected="SimDistAgent")
+        return cls.from_checkpoint(ckpt, path, map_location)
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict, path="<checkpoint>", map_location=None) -> SimDistAgent:
+        """An agent from a validated checkpoint dict (see :meth:`load`)."""
+        config = ckpt["config"]
+        wm = ckpt_format.build("world model", build_simdist_model,
+                               ckpt_format.part(config, path, "world_model"), path)
+        agent_config = ckpt_format.config_from_dict(
+            SimDistConfig, ckpt_format.part(config, path, "agent"), path, "SimDistConfig")
+        planner = config.get("planner")
+        planner = None if planner is None else ckpt_format.config_from_dict(
+            PlannerConfig, planner, path, "PlannerConfig")
+        agent = cls(wm, agent_config, planner_config=planner)
+        ckpt_format.load_weights(wm, ckpt_format.part(ckpt, path, "weights", "world_model"),
+                                 path, "world_model")
+        ckpt_format.load_optimisers(agent, ckpt, ("pretrain_optim", "finetune_optim", "whole_optim"), path)
+        agent.checkpoint_meta = dict(ckpt.get("meta", {}))
+        return agent.to(map_location) if map_location is not None else agent
 
     def make_primer(self) -> TensorDictPrimer:
         enc = self.world_model.encoder

@@ -7,12 +7,17 @@ and acts with the teacher's actor on the student's latent (TWIST Sec. IV deploym
 
 from __future__ import annotations
 
+import dataclasses
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from tensordict import TensorDictBase
 
-from simdist.agents.dreamer import DreamerAgent, DreamerPolicy
+from simdist.agents import checkpoint as ckpt_format
+from simdist.agents.describe import build_dreamer_model, describe_dreamer_model
+from simdist.agents.dreamer import DreamerAgent, DreamerPolicy, check_unit_box
 from simdist.modules import DreamerWorldModel, RandomRotate, RandomShift
 from simdist.objectives import ImaginedAlignmentLoss, TwistDistillationLoss
 from simdist.utils.device import module_device, move_to_device
@@ -146,11 +151,81 @@ class TwistStudent:
         self.student.load_state_dict(state["student"])
         self.optim.load_state_dict(state["optim"])
 
-    def policy(self, explore: bool = False) -> DreamerPolicy:
-        """Pixels -> student latent -> teacher actor (uses ``self.make_primer()`` state)."""
+    def policy(self, explore: bool = False, action_spec=None) -> DreamerPolicy:
+        """Pixels -> student latent -> teacher actor (uses ``self.make_primer()`` state).
+
+        Args:
+            explore: add the teacher's exploration noise (off for deployment).
+            action_spec: the env's TorchRL action spec, checked to be ``[-1, 1]`` (the
+                teacher actor's range; see :meth:`DreamerAgent.policy`).
+        """
+        check_unit_box(action_spec)
         return DreamerPolicy(self.student, self.teacher.actor, "pixels", obs_event_dims=3,
                              exploration_noise=self.teacher.config.exploration_noise,
                              explore=explore)
 
     def make_primer(self):
         return self.teacher.make_primer()  # same RSSM sizes, same state keys
+
+    # -- self-describing checkpoints --------------------------------------------------
+    def save(self, path: str | os.PathLike, optimisers: bool = True,
+             meta: dict | None = None) -> Path:
+        """Writes one self-describing file that deploys alone: the student, the teacher
+        (its world model and actor, which the policy and the losses use; not its
+        optimisers) and the configs. :meth:`load` needs no teacher checkpoint or recipe
+        code. ``meta`` is free-form plain data (e.g. the task).
+
+        Examples:
+            >>> import tempfile
+            >>> from simdist.agents import DreamerConfig
+            >>> teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+            >>> twist = TwistStudent(teacher, DreamerWorldModel.student(1, size="tiny"),
+            ...                      TwistConfig(horizon=3))
+            >>> loaded = TwistStudent.load(twist.save(Path(tempfile.mkdtemp()) / "s.pt"))
+            >>> loaded.config.horizon, torch.equal(loaded.teacher.actor.net[0].weight,
+            ...                                    teacher.actor.net[0].weight)
+            (3, True)
+        """
+        config = {"twist": dataclasses.asdict(self.config),
+                  "student": describe_dreamer_model(self.student),
+                  "pixels_key": list(self.pixels_key) if isinstance(self.pixels_key, tuple)
+                  else self.pixels_key,
+                  "teacher": self.teacher.describe()}
+        weights = {"student": self.student.state_dict(), "teacher": self.teacher.weights()}
+        return ckpt_format.write_agent_checkpoint(
+            path, "TwistStudent", config, weights,
+            {"optim": self.optim.state_dict()} if optimisers else None, meta)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, map_location=None) -> TwistStudent:
+        """Rebuilds a student (and its frozen teacher) from a file :meth:`save` wrote.
+
+        Args:
+            path: the file.
+            map_location: device for both models (default: the CPU).
+
+        Raises:
+            FileNotFoundError, CorruptCheckpointError: naming the file (see
+                :func:`~simdist.agents.checkpoint.read_agent_checkpoint`).
+        """
+        ckpt = ckpt_format.read_agent_checkpoint(path, expected="TwistStudent")
+        return cls.from_checkpoint(ckpt, path, map_location)
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict, path="<checkpoint>", map_location=None) -> TwistStudent:
+        """A student from a validated checkpoint dict (see :meth:`load`)."""
+        config, weights = ckpt["config"], ckpt["weights"]
+        teacher = DreamerAgent.from_config(ckpt_format.part(config, path, "teacher"), path)
+        teacher.load_weights(ckpt_format.part(weights, path, "teacher"), path)
+        student = ckpt_format.build("student", build_dreamer_model,
+                                    ckpt_format.part(config, path, "student"), path)
+        twist_config = ckpt_format.config_from_dict(
+            TwistConfig, ckpt_format.part(config, path, "twist"), path, "TwistConfig")
+        pixels_key = ckpt_format.part(config, path, "pixels_key")
+        pixels_key = tuple(pixels_key) if isinstance(pixels_key, list) else pixels_key
+        twist = cls(teacher, student, twist_config, pixels_key)
+        ckpt_format.load_weights(student, ckpt_format.part(weights, path, "student"), path,
+                                 "student")
+        ckpt_format.load_optimisers(twist, ckpt, ("optim",), path)
+        twist.checkpoint_meta = dict(ckpt.get("meta", {}))
+        return twist.to(map_location) if map_location is not None else twist
