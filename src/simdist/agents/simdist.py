@@ -183,14 +183,16 @@ class SimDistAgent:
         """A planning policy over this world model within the env's action bounds.
 
         Args:
-            action_low, action_high: per-dimension bounds ``[A]``; or give
-            action_spec: the env's TorchRL action spec instead (``env.action_spec``,
-                batched or not; see :func:`~simdist.agents.action_spec.action_bounds`).
-                With neither, the planner config's scalar bounds apply.
+            action_low: per-dimension lower bounds ``[A]`` (with ``action_high``), or
+                give ``action_spec`` instead. With neither, the planner config's scalar
+                bounds apply.
+            action_high: per-dimension upper bounds ``[A]``.
             config: the planner (default: ``self.planner_config``, which :meth:`load`
                 restores, else ``PlannerConfig()``).
             seed: seeds the planner's sampling noise.
             compile: ``torch.compile`` the planning loop.
+            action_spec: the env's TorchRL action spec (``env.action_spec``, batched or
+                not; see :func:`~simdist.agents.action_spec.action_bounds`).
 
         Examples:
             >>> from torchrl.data import Bounded
