@@ -1,0 +1,132 @@
+"""Evaluate any saved agent in any task and target: returns with mean / IQM / 95% CI, and
+forward progress for locomotion; optionally an MP4 of one episode.
+
+Works for the three agent classes alike (:func:`simdist.agents.load_agent` gives one):
+a :class:`~simdist.agents.SimDistAgent` plans within the env's action spec, a
+:class:`~simdist.agents.DreamerAgent` acts from ``"state"`` or ``"pixels"``, a
+:class:`~simdist.agents.TwistStudent` acts from pixels. ``recipes/evaluate.py`` is the
+command line over these functions.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from torchrl.envs import InitTracker, TransformedEnv
+
+from simdist.agents import DreamerAgent, SimDistAgent, TwistStudent
+from simdist.envs import get_target, get_task, make_env
+from simdist.modules import PlannerConfig
+from simdist.pipelines.locomotion import progress_stats, rollout
+from simdist.pipelines.statistics import summarise
+from simdist.viz.video import write_mp4
+
+
+def uses_pixels(agent) -> bool:
+    """Whether ``agent`` acts from ``"pixels"`` (a TWIST student or a pixel Dreamer)."""
+    return isinstance(agent, TwistStudent) or getattr(agent, "obs_key", None) == "pixels"
+
+
+def evaluation_env(agent, task: str, target=None, episodes: int = 1, steps: int | None = None,
+                   seed: int = 0, image_size: int = 64) -> TransformedEnv:
+    """``episodes`` batched worlds of ``task`` in ``target`` with ``InitTracker`` and the
+    agent's primer; pixels are rendered when the agent or the target needs them."""
+    target = get_target(target)
+    pixels = uses_pixels(agent) or target.visual is not None
+    env = TransformedEnv(make_env(task, target=target, pixels=pixels, num_envs=episodes,
+                                  seed=seed, max_episode_steps=steps, image_size=image_size),
+                         InitTracker())
+    env.append_transform(agent.make_primer())
+    return env
+
+
+def agent_policy(agent, env, planner: PlannerConfig | None = None, seed: int = 0):
+    """The agent's deterministic policy for ``env`` (``planner`` for a SimDist agent)."""
+    if isinstance(agent, SimDistAgent):
+        return agent.policy(action_spec=env.action_spec, config=planner, seed=seed)
+    if isinstance(agent, (DreamerAgent, TwistStudent)):
+        return agent.policy(explore=False, action_spec=env.action_spec)
+    raise TypeError(f"cannot evaluate a {type(agent).__name__}: expected SimDistAgent, "
+                    "DreamerAgent or TwistStudent")
+
+
+def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int | None = None,
+                   seed: int = 0, planner: PlannerConfig | None = None) -> dict:
+    """Runs ``episodes`` episodes (one per batched world) and summarises them.
+
+    Torch's random draws (a Dreamer policy samples its latent, a planner seeds from
+    ``seed``) come from ``seed`` inside a forked generator state, so the figures depend on
+    the agent, task, target and seed alone.
+
+    Returns:
+        ``{"task", "target", "episodes", "steps", "seed", "returns": [...],
+        "return": summarise(returns)}``, plus ``"progress"``
+        (:func:`~simdist.pipelines.progress_stats`) for tasks with a commanded speed.
+
+    Examples:
+        >>> from simdist.agents import DreamerAgent, DreamerConfig
+        >>> agent = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+        >>> out = evaluate_agent(agent, "cartpole-balance", "sim", episodes=2, steps=5)
+        >>> out["target"], len(out["returns"]), sorted(out["return"])[:3]
+        ('sim', 2, ['ci_high', 'ci_low', 'iqm'])
+    """
+    steps = int(steps or get_task(task).max_episode_steps)
+    env = evaluation_env(agent, task, target, episodes, steps, seed)
+    try:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            td = rollout(env, agent_policy(agent, env, planner, seed), steps)
+        layout = env.base_env.observation_layout
+        returns = td["next", "reward"].sum((1, 2)).tolist()
+        out = {"task": task, "target": get_target(target).name, "episodes": episodes,
+               "steps": steps, "seed": seed, "returns": returns, "return": summarise(returns)}
+        if layout is not None and "command" in layout.names():
+            out["progress"] = progress_stats(td, layout["command"].start)
+        return out
+    finally:
+        env.close()
+
+
+def record_video(agent, task: str, path: str | os.PathLike, target=None,
+                 steps: int | None = None, seed: int = 0, size: int = 256,
+                 fps: float | None = None, planner: PlannerConfig | None = None) -> Path:
+    """Renders one episode of the agent's deterministic policy at ``size`` px into an MP4.
+
+    ``steps + 1`` frames: the reset and the state after every step, from the task's camera
+    (not the agent's own 64 px view). ``fps`` defaults to the task's control rate (real
+    time).
+
+    Examples:
+        >>> import tempfile
+        >>> from simdist.agents import DreamerAgent, DreamerConfig
+        >>> agent = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+        >>> path = record_video(agent, "cartpole-balance", Path(tempfile.mkdtemp()) / "e.mp4",
+        ...                     steps=4, size=64)
+        >>> path.suffix, path.stat().st_size > 0
+        ('.mp4', True)
+    """
+    steps = int(steps or get_task(task).max_episode_steps)
+    env = evaluation_env(agent, task, target, 1, steps, seed)
+    sim = env.base_env.sims[0]
+    frames = []
+    try:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            policy = agent_policy(agent, env, planner, seed)
+            with torch.no_grad():
+                td = env.reset()
+                frames.append(sim.render(size))
+                # TorchRL calls the callback after every step but the last one
+                env.rollout(steps, policy, auto_reset=False, tensordict=td,
+                            break_when_any_done=False,
+                            callback=lambda *_: frames.append(sim.render(size)))
+                frames.append(sim.render(size))
+    finally:
+        env.close()
+    if fps is None:
+        dt = sim.physics.timestep() * sim.n_sub_steps * sim.spec.action_repeat
+        fps = round(1.0 / dt, 3)
+    return write_mp4(np.stack(frames), path, fps)
