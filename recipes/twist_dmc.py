@@ -197,7 +197,10 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
                                seed=stage_seed(seed, f"{task}/teacher"),
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
+    # a self-describing file for recipes/evaluate.py (agent.pt is the training checkpoint)
+    agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
     return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
+            "agent": str(stage_dir / "teacher_agent.pt"),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
 
@@ -246,8 +249,11 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
                               every=max(1, cfg.student_updates // 10),
                               desc=f"{stage_dir.name}", seed=stage_seed(seed, stage_dir.name),
                               logger=make_logger(cfg.logger, cfg.output_dir))
+    # deployable alone (carries the teacher's actor): recipes/evaluate.py --checkpoint
+    twist.save(stage_dir / "student_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
     result = evaluate(cfg, task, seed, twist.policy(), twist.make_primer(), pixels=True)
     return {**result, "checkpoint": str(stage_dir / "student.pt"),
+            "agent": str(stage_dir / "student_agent.pt"),
             "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
 
 
@@ -261,9 +267,10 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
                                seed=stage_seed(seed, stage_dir.name),
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
+    agent.save(stage_dir / "dreamer_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
     result = evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
                       pixels=True)
-    return {**result, "episode_returns": out["episode_returns"], "updates": out["updates"],
+    return {**result, "agent": str(stage_dir / "dreamer_agent.pt"), "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
 
 
