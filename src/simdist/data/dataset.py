@@ -86,8 +86,10 @@ class DatasetConfig:
 
 
 def _versions() -> dict:
-    out = {}
-    for name in ("simdist", "torch", "torchrl", "tensordict", "mujoco", "dm-control"):
+    from simdist import __version__  # the distribution is named simdist-rl, not simdist
+
+    out = {"simdist": __version__}
+    for name in ("torch", "torchrl", "tensordict", "mujoco", "dm-control"):
         try:
             out[name] = importlib_metadata.version(name)
         except importlib_metadata.PackageNotFoundError:
@@ -234,7 +236,7 @@ def _ray_shards(cfg: DatasetConfig, todo, expert, snapshots, max_in_flight: int 
     try:
         import ray
     except ImportError as err:
-        raise ImportError("backend='ray' needs Ray: pip install 'simdist[distributed]'") from err
+        raise ImportError("backend='ray' needs Ray: pip install 'simdist-rl[distributed]'") from err
     if not ray.is_initialized():
         if os.environ.get("RAY_ADDRESS"):  # an existing cluster, as Ray's own tools do
             ray.init(log_to_driver=False)

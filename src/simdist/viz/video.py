@@ -17,7 +17,7 @@ import torch
 from simdist.utils.atomic import atomic_path
 
 INSTALL_HINT = ("writing MP4 videos needs imageio-ffmpeg (it ships an ffmpeg binary): "
-                "pip install 'imageio-ffmpeg>=0.5' (the 'video' extra of simdist)")
+                "pip install 'imageio-ffmpeg>=0.5' (the 'video' extra of simdist-rl)")
 
 
 def video_backend_available() -> bool:
