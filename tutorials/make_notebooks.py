@@ -258,15 +258,14 @@ import matplotlib.pyplot as plt
 from simdist.agents import SimDistAgent, SimDistConfig
 from simdist.data import DatasetConfig, generate_dataset, load_dataset
 from simdist.envs import get_target
-from simdist.experts import Expert
+from simdist.experts import Expert, committed_expert
 from simdist.modules import SimDistWorldModel
 from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import as_slices, locomotion_env, progress_stats, rollout, weights
 
 LARGE = os.environ.get("SIMDIST_TUTORIAL_LARGE") == "1"
 STEPS = 250 if LARGE else 40          # steps per episode (50 Hz)
-root = Path(simdist.__file__).resolve().parents[2]
-EXPERT = root / "checkpoints" / "quadruped_expert" / "expert.pt"
+EXPERT = committed_expert()  # the shipped quadruped expert (package data)
 workdir = Path(tempfile.mkdtemp())
 torch.manual_seed(0)"""),
     ("md", """## 1. A perturbed-expert dataset

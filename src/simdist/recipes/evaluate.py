@@ -120,5 +120,10 @@ def main(argv=None):
         return run(cfg)
 
 
+def cli() -> None:
+    """The ``simdist-evaluate`` console script: :func:`main` on ``sys.argv``, exit status 0."""
+    main()
+
+
 if __name__ == "__main__":
     main()

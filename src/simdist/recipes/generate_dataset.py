@@ -14,7 +14,7 @@ import json
 
 import simdist  # noqa: F401
 from simdist.data import DatasetConfig, generate_dataset
-from simdist.experts import Expert
+from simdist.experts import Expert, resolve_expert
 from simdist.utils import load_checkpoint
 
 
@@ -31,10 +31,11 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=1,
                         help="processes stepping the worlds (TorchRL ParallelEnv)")
     parser.add_argument("--backend", choices=["local", "ray"], default="local",
-                        help="ray: each shard is a Ray task (pip install 'simdist[distributed]')")
+                        help="ray: each shard is a Ray task (pip install 'simdist-rl[distributed]')")
     parser.add_argument("--pixels", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    args.expert = resolve_expert(args.expert)  # the default is shipped as package data
     snapshots = sorted(load_checkpoint(args.expert)["snapshots"])
     expert = Expert.load(args.expert)
     earlier = [Expert.load(args.expert, snapshot=name) for name in snapshots]
@@ -45,6 +46,11 @@ def main(argv=None):
     meta = json.loads((path / "meta.json").read_text())
     print(f"{meta['transitions']} transitions, {meta['bytes'] / 1e6:.1f} MB, "
           f"{meta['seconds']:.0f} s of generation -> {path}")
+
+
+def cli() -> None:
+    """The ``simdist-dataset`` console script: :func:`main` on ``sys.argv``, exit status 0."""
+    main()
 
 
 if __name__ == "__main__":

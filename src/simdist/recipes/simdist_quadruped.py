@@ -40,7 +40,7 @@ from simdist.agents import SimDistAgent, SimDistConfig
 from simdist.data import DatasetConfig, generate_dataset, generate_shard, load_dataset
 from simdist.data.dataset import read_dataset_meta
 from simdist.envs import TASKS, describe_ranges, get_target
-from simdist.experts import Expert, SACExpertConfig, train_sac_expert
+from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder
 from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_error
@@ -188,7 +188,7 @@ PRESETS = {
 # -- stages -----------------------------------------------------------------------------
 def expert_stage(cfg: Config, stage_dir: Path) -> dict:
     """Loads the committed expert, or retrains it (resumable) when asked."""
-    path = Path(cfg.expert)
+    path = resolve_expert(cfg.expert)  # the default is shipped as package data
     if cfg.retrain_expert:
         path = train_sac_expert(SACExpertConfig(task=cfg.data_task, total_frames=cfg.expert_frames,
                                                 seed=cfg.seed), stage_dir)
@@ -523,7 +523,7 @@ def run_seeds(cfg: Config) -> dict:
 def main(argv=None):
     cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
                           prog="simdist_quadruped.py")
-    if not cfg.retrain_expert and not Path(cfg.expert).exists():  # before any work
+    if not cfg.retrain_expert and not resolve_expert(cfg.expert).exists():  # before any work
         raise SystemExit(f"simdist_quadruped.py: error: expert: no checkpoint at {cfg.expert}: "
                          "train one with `python recipes/train_expert.py` or pass "
                          "--retrain-expert")
@@ -543,6 +543,12 @@ def collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds) -> dict:
         "ablation: finetune whole model": [zero] + [r["whole_eval"] for r in rounds],
         "baseline: continue expert SAC": [expert] + [r["sac_eval"] for r in rounds],
     }
+
+
+def cli() -> None:
+    """The ``simdist-quadruped`` console script: :func:`main` on ``sys.argv``, exit status 0."""
+    main()
+
 
 if __name__ == "__main__":
     main()

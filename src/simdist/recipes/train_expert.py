@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
 import simdist  # noqa: F401
-from simdist.experts import Expert, SACExpertConfig, evaluate, train_sac_expert
+from simdist.experts import Expert, SACExpertConfig, evaluate, resolve_expert, train_sac_expert
 from simdist.envs import TARGETS, get_task
 from simdist.utils import atomic_path, load_checkpoint, write_json_atomic
 
@@ -71,8 +72,11 @@ def main(argv=None):
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     get_task(args.task)  # an unknown task fails before any work
+    init_from = args.init_from
+    if init_from and not Path(init_from).exists():  # a shipped expert, from any directory
+        init_from = str(resolve_expert(init_from))
     cfg = SACExpertConfig(task=args.task, total_frames=args.frames, seed=args.seed,
-                          init_from=args.init_from, alpha_init=args.alpha_init,
+                          init_from=init_from, alpha_init=args.alpha_init,
                           init_random_frames=args.init_random_frames,
                           updates_per_batch=args.updates_per_batch, target=args.target)
     path = train_sac_expert(cfg, args.out, progress=not args.no_progress)
@@ -88,6 +92,11 @@ def main(argv=None):
         print(f"{target:15s} return {report[target]['return']:7.1f}   "
               f"forward progress {report[target]['forward_progress']:5.2f} m")
     write_json_atomic(path.parent / "transfer.json", report)
+
+
+def cli() -> None:
+    """The ``simdist-train-expert`` console script: :func:`main` on ``sys.argv``, exit status 0."""
+    main()
 
 
 if __name__ == "__main__":
