@@ -284,7 +284,7 @@ print(meta["transitions"], "transitions,", meta["bytes"] / 1e6, "MB")"""),
 Encoder (history of robot-measurable observations -> latent), latent dynamics, reward,
 value and policy-prior heads, trained together on slices that never cross episodes."""),
     ("code", """buffer = load_dataset(path, slice_len=8, batch_size=8 * 16)
-obs = buffer.storage._storage["observation"]
+obs = buffer[:]["observation"]  # the whole dataset, a view of the memory map
 wm = SimDistWorldModel.build(obs.shape[-1], 12, size="tiny")
 wm.encoder.set_normalisation(obs.reshape(-1, obs.shape[-1]).mean(0), obs.reshape(-1, obs.shape[-1]).std(0))
 agent = SimDistAgent(wm, SimDistConfig(size="tiny", horizon=3, value_weight=1e-3))

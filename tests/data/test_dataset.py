@@ -122,3 +122,15 @@ def test_one_collector_over_several_shards_equals_one_shard_at_a_time(experts):
         alone = generate_shard(CFG, shard, *experts)
         assert (rows == alone).all()
         assert torch.equal(rows["episode"][:, 0], torch.arange(2) + 2 * shard)
+
+
+def test_whole_dataset_is_a_view_of_the_memory_map(reference):
+    # recipes read the whole dataset (normalisation statistics, sizes) through buffer[:],
+    # TorchRL's public indexing, instead of buffer.storage._storage: the same tensors,
+    # no copy of what may be hundreds of MB
+    buffer = load_dataset(reference, slice_len=4, batch_size=8)
+    whole, stored = buffer[:], buffer.storage._storage
+    assert whole.batch_size == stored.batch_size
+    for key in ("observation", "action", "state"):
+        assert torch.equal(whole[key], stored[key]), key
+        assert whole[key].untyped_storage().data_ptr() == stored[key].untyped_storage().data_ptr()

@@ -8,7 +8,7 @@ from simdist.envs import get_target
 from simdist.experts import Expert
 from simdist.modules import SimDistWorldModel
 from simdist.modules.planner import PlannerConfig
-from simdist.pipelines import as_slices, locomotion_env, progress_stats, rollout, train
+from simdist.pipelines import as_slices, locomotion_env, progress_stats, rollout
 
 
 def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
@@ -18,8 +18,9 @@ def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
                             tmp_path / "data", expert, progress=False)
     agent = SimDistAgent(SimDistWorldModel.build(89, 12, size="tiny", history=2),
                          SimDistConfig(horizon=3))
-    train(agent.pretrain_update, load_dataset(data, slice_len=6, batch_size=24), updates=3,
-          slice_len=6, desc="pretrain", progress=False)
+    pretrain_data = load_dataset(data, slice_len=6, batch_size=24)
+    for _ in range(3):
+        agent.pretrain_update(pretrain_data.sample().reshape(-1, 6))
     env = locomotion_env(get_target("slippery_slope"), episodes=2, steps=8, seed=1,
                          primers=[agent.make_primer()])
     spec = env.action_spec
@@ -31,7 +32,8 @@ def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
     assert (target_data["observation"][:, 0, command] > 0).all()
     assert len(stats["progress_m"]) == 2 and abs(stats["mean_fraction"]) < 10
     frozen = {k: v.clone() for k, v in agent.world_model.state_dict().items() if not k.startswith("dynamics")}
-    train(agent.finetune_update, as_slices(target_data, slice_len=5, batch_slices=2), updates=2,
-          slice_len=5, desc="finetune", progress=False)
+    finetune_data = as_slices(target_data, slice_len=5, batch_slices=2)
+    for _ in range(2):
+        agent.finetune_update(finetune_data.sample().reshape(-1, 5))
     assert all(torch.equal(v, frozen[k]) for k, v in agent.world_model.state_dict().items()
                if not k.startswith("dynamics"))

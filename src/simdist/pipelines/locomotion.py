@@ -1,4 +1,4 @@
-"""Building blocks of the SimDist quadruped pipeline: evaluate, collect, pretrain, finetune.
+"""Building blocks of the SimDist quadruped pipeline: envs, rollouts, progress, slices.
 
 Each is a plain function over the library's parts, so the recipe reads top to bottom and
 users can recombine the steps (e.g. another target, another policy).
@@ -12,7 +12,6 @@ from tensordict import TensorDict
 from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
 from torchrl.envs import InitTracker, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from tqdm import tqdm
 
 from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
@@ -61,11 +60,3 @@ def as_slices(td: TensorDict, slice_len: int, batch_slices: int) -> TensorDictRe
     return TensorDictReplayBuffer(storage=TensorStorage(data.reshape(-1)), sampler=sampler,
                                   batch_size=slice_len * batch_slices)
 
-
-def train(update, buffer, updates: int, slice_len: int, desc: str, progress: bool = True) -> list:
-    """Calls ``update(batch)`` on ``updates`` sampled ``[slices, slice_len]`` batches."""
-    history = []
-    for _ in tqdm(range(updates), desc=desc, disable=not progress):
-        batch = buffer.sample().reshape(-1, slice_len)
-        history.append(update(batch))
-    return history

@@ -276,8 +276,9 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
                    logger=None) -> dict:
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
-    obs = buffer.storage._storage["observation"]
-    agent = new_agent(cfg, obs.shape[-1], buffer.storage._storage["action"].shape[-1])
+    data = buffer[:]  # the whole memory-mapped dataset (a view: nothing is copied)
+    obs = data["observation"]
+    agent = new_agent(cfg, obs.shape[-1], data["action"].shape[-1])
     flat = obs.reshape(-1, obs.shape[-1])
     agent.world_model.encoder.set_normalisation(flat.mean(0), flat.std(0))
     history = train_resumable(
@@ -289,7 +290,7 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
     agent_file = save_agent(cfg, agent, stage_dir / "agent.pt")
     first, last = mean_metrics(history[:50], 50), mean_metrics(history)
     return {"path": str(stage_dir / "world_model.pt"), "agent": agent_file, "obs_dim": obs.shape[-1],
-            "action_dim": buffer.storage._storage["action"].shape[-1],
+            "action_dim": data["action"].shape[-1],
             "first": first, "last": last,
             "term_shares_first": term_shares(first), "term_shares_last": term_shares(last),
             "heldout_prediction_error_rel": heldout_prediction_error(cfg, agent, expert_path)}
@@ -401,7 +402,7 @@ def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path,
     """
     agent = load_agent(cfg, pretrained)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
-    state_dim = buffer.storage._storage["state"].shape[-1]
+    state_dim = buffer[:]["state"].shape[-1]
     probe = StateDecoder(agent.world_model.latent_dim, state_dim, hidden=256,
                          layers=2).to(cfg.device)
     loss = ProbeLoss(agent.world_model.encode_sequence, probe)
