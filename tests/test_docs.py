@@ -66,3 +66,19 @@ def test_mkdocs_config_parses():
     config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
     assert config["strict"] is True
     assert "mkdocstrings" in str(config["plugins"])
+
+
+def test_robot_task_page_runs(tmp_path, monkeypatch):
+    # docs/robot_tasks.md's worked example registers a task: every block runs, in order.
+    from simdist.envs import TASKS
+    from tests.test_readme import python_blocks
+
+    page = ROOT / "docs" / "robot_tasks.md"
+    blocks = python_blocks(page.read_text())
+    assert len(blocks) >= 3
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setitem(TASKS, "cheetah-commanded", None)  # restored (removed) afterwards
+    namespace: dict = {"__name__": "__docs__"}
+    for line, source in blocks:
+        exec(compile(source, f"docs/robot_tasks.md:{line}", "exec"), namespace)
+    assert TASKS["cheetah-commanded"].is_robot
