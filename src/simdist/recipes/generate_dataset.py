@@ -31,7 +31,8 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=1,
                         help="processes stepping the worlds (TorchRL ParallelEnv)")
     parser.add_argument("--backend", choices=["local", "ray"], default="local",
-                        help="ray: each shard is a Ray task (pip install 'simdist-rl[distributed]')")
+                        help="ray: each shard is a Ray task "
+                             "(pip install 'simdist-rl[distributed]')")
     parser.add_argument("--pixels", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
