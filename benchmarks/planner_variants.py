@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib.util
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -28,19 +26,8 @@ import torch
 from tensordict.nn import TensorDictModule
 
 from simdist.envs import get_target
+from simdist.recipes import simdist_quadruped as recipe
 from simdist.pipelines import locomotion_env, progress_stats, rollout
-from simdist.utils import load_checkpoint
-
-RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "simdist_quadruped.py"
-
-
-def load_recipe():
-    spec = importlib.util.spec_from_file_location("simdist_quadruped", RECIPE)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up while being built
-    spec.loader.exec_module(module)
-    return module
-
 
 def parse_variant(text: str) -> tuple[str, dict]:
     name, _, fields = text.partition(":")
@@ -79,7 +66,6 @@ def main(argv=None):
     parser.add_argument("--weights", default=None, help="world-model weights (default: pretrained)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    recipe = load_recipe()
     run = Path(args.run)
     cfg_dict = json.loads((run / "config.json").read_text())
     cfg_dict = cfg_dict.get("config", cfg_dict)
