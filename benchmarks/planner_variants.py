@@ -23,7 +23,6 @@ from pathlib import Path
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
-from tensordict.nn import TensorDictModule
 
 from simdist.envs import get_target
 from simdist.recipes import simdist_quadruped as recipe
