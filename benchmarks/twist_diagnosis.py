@@ -15,7 +15,18 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   (``--depth``, ``--norm layer``, ``--input-norm image``), augmentation (``--shift``,
   ``--rotate``), ``--extra-renders K`` (D's training states rendered K more times under
   other training randomisations) and ``--heldout-renders`` (the test states re-rendered
-  under the recipe's evaluation scenes, with and without the camera jitter).
+  under the recipe's evaluation scenes, with and without the camera jitter) and
+  ``--train-camera`` (the training images are D's states re-rendered under the recipe's
+  ``train_camera`` randomisation: a camera-pose draw per image, so one teacher serves both
+  arms).
+
+``pixels`` prints, after each budget, the held-out return and the student's latent R^2:
+the teacher's decoder applied to the student's posterior features on 128 slices of D's
+recorded images, per state dimension (``latent_r2``; ``teacher_r2``: the same with the
+teacher's own posterior, the ceiling). ``--train-camera`` trains the student on D with
+every image re-rendered under the ``train_camera`` randomisation (same states, actions
+and rewards: what a teacher stage with ``train_camera=True`` would record, on the same
+teacher); ``--standardise-belief`` turns on ``TwistConfig.standardise_belief``.
 
 Every figure in the README's TWIST "honest reading" comes from this script.
 
@@ -27,6 +38,9 @@ Usage:
     python benchmarks/twist_diagnosis.py probe --updates 1500 --batch 400
     python benchmarks/twist_diagnosis.py probe --updates 300,600,900 --batch 128 \
         --heldout-renders --norm layer --input-norm image --shift 4
+    python benchmarks/twist_diagnosis.py probe ... --train-camera   # H1, camera in training
+    python benchmarks/twist_diagnosis.py pixels --updates 300 --episodes 10 \
+        --train-camera | --standardise-belief --name ARM
 """
 
 from __future__ import annotations
@@ -58,8 +72,11 @@ def teacher_stage(outputs: Path, task: str, seed: int) -> dict:
     return json.loads(path.read_text())["result"]
 
 
-def make_student(variant: str, cfg, task: str, teacher, lr: float | None) -> TwistStudent:
+def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
+                 standardise_belief: bool = False) -> TwistStudent:
     overrides = {} if lr is None else {"lr": lr}
+    if standardise_belief:
+        overrides["standardise_belief"] = True
     if variant == "state":
         state_dim, action_dim = recipe.state_dim(task)
         student = DreamerWorldModel.teacher(state_dim, action_dim, cfg.model_size)
@@ -80,12 +97,30 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None) -> Twi
 def distil(args, cfg, teacher_result: dict) -> None:
     torch.manual_seed(args.seed)
     teacher = recipe.load_teacher(cfg, args.task, teacher_result)
-    twist = make_student(args.variant, cfg, args.task, teacher, args.lr)
+    twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
+                         args.standardise_belief)
+    recorded = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
+    episodes = recorded
+    if args.train_camera:  # D's states re-rendered under the recipe's train_camera DR
+        states = torch.cat([e["next", "state"] for e in recorded])
+        images = train_camera_renders(args, cfg, states, "D_all").split(
+            [len(e) for e in recorded])
+        episodes = [e.clone() for e in recorded]
+        for e, x in zip(episodes, images):
+            e.set(("next", "pixels"), x)
     replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
                            cfg.student_slices)
-    for episode in load_episodes(teacher_result["data"]):
-        replay.add(episode.to_tensordict())
-    stage = args.work / f"{args.variant}_lr{args.lr}"
+    for episode in episodes:
+        replay.add(episode)
+    probe_replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len, 128)
+    for episode in recorded:  # latent R^2 on the recorded images for every arm
+        probe_replay.add(episode)
+    generator_state = torch.get_rng_state()
+    torch.manual_seed(12345)  # the same 128 slices for every arm and budget
+    probe_batch = probe_replay.sample()
+    torch.set_rng_state(generator_state)
+    stage = args.work / (f"{args.variant}_lr{args.lr}" if args.name == "base"
+                         else f"{args.variant}_{args.name}")
     for updates in args.updates:  # cumulative: resumes from the previous budget
         start = time.perf_counter()
         history = train_resumable(twist.update, replay.sample, updates, {"twist": twist},
@@ -100,10 +135,43 @@ def distil(args, cfg, teacher_result: dict) -> None:
             cfg_eval = dataclasses.replace(cfg, eval_episodes=args.episodes)
             result = recipe.evaluate(cfg_eval, args.task, args.seed, twist.policy(),
                                      twist.make_primer(), pixels=True)
-        print(json.dumps({"variant": args.variant, "updates": updates, "lr": args.lr,
-                          "mean": result["mean"], "std": result["std"],
+        extra = {}
+        if args.variant != "state":
+            extra = latent_r2(twist, probe_batch)
+        print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
+                          "lr": args.lr, "mean": result["mean"], "std": result["std"], **extra,
                           "train_s": round(seconds, 1), "last": mean_metrics(history, 50)}),
               flush=True)
+
+
+def latent_r2(twist: TwistStudent, batch) -> dict:
+    """R^2 per state dimension of the teacher's decoder on the student's (and, for
+    reference, the teacher's own) posterior features of ``batch``: what each latent
+    carries of the true state."""
+    state = batch["next", "state"]
+    with torch.no_grad():
+        teacher, student = twist.distillation.filter_both(batch.clone())
+        decode = twist.teacher.world_model.decode
+        out = {}
+        for name, states in (("latent_r2", student), ("teacher_r2", teacher)):
+            error = (decode(DreamerWorldModel.features(states)) - state).pow(2)
+            r2 = 1 - error.flatten(0, 1).mean(0) / state.flatten(0, 1).var(0)
+            out[name] = [round(v, 2) for v in r2.tolist()]
+    return out
+
+
+def train_camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Tensor:
+    """``states`` rendered once each under the recipe's ``train_camera`` randomisation
+    (cached in ``--work``)."""
+    path = args.work / "probe_renders" / f"traincam_{name}_s{args.seed}.pt"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        visual = recipe.training_visual(dataclasses.replace(cfg, train_camera=True))
+        start = time.perf_counter()
+        torch.save(render_states(args.task, states, visual, args.seed + 40_000)[0], path)
+        print(f"rendered {len(states)} images under {visual} in "
+              f"{time.perf_counter() - start:.0f} s", flush=True)
+    return torch.load(path)
 
 
 def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, seed: int,
@@ -161,6 +229,8 @@ def probe(args, cfg, teacher_result: dict) -> None:
                                          args.seed + 20_000)[0], path)
             heldout[name] = torch.load(path)
     images = pixels[train][None]  # [1 + extra renders, N_train, ...]
+    if args.train_camera:  # the same training states, each with a camera-pose draw
+        images = train_camera_renders(args, cfg, states[train], "probe_train")[None]
     if args.extra_renders:
         path = cache / f"extra{args.extra_renders}_s{args.seed}.pt"
         if not path.exists():
@@ -232,7 +302,13 @@ def main():
                         help="probe: extra training renders of D's states")
     parser.add_argument("--heldout-renders", action="store_true",
                         help="probe: also test on the test states under held-out scenes")
-    parser.add_argument("--name", default="base", help="probe: a label for the log")
+    parser.add_argument("--train-camera", action="store_true",
+                        help="probe/pixels: training images re-rendered under the recipe's "
+                             "train_camera randomisation (camera-pose draw per image)")
+    parser.add_argument("--standardise-belief", action="store_true",
+                        help="pixels: TwistConfig.standardise_belief")
+    parser.add_argument("--name", default="base",
+                        help="a label for the log (pixels: also the checkpoint folder)")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()

@@ -129,3 +129,63 @@ def test_student_float_pixels_in_0_255_are_refused():
     td["next", "pixels"] = torch.randint(0, 256, (2, 3, 64, 64, 3)).float()
     with pytest.raises(ValueError, match="TwistDistillationLoss: float \\('next', 'pixels'\\)"):
         TwistDistillationLoss(teacher, student)(td)
+
+
+def test_standardised_belief_distance_equals_a_hand_computed_value():
+    from simdist.objectives.distillation import belief_distance
+
+    # teacher beliefs over a batch of 2 x 2 steps, 3 dimensions
+    teacher = torch.tensor([[[0.0, 0.0, 1.0], [2.0, 0.2, 1.0]],
+                            [[0.0, 0.0, 1.0], [2.0, 0.2, 1.0]]])
+    student = teacher.clone()
+    student[0, 0] = torch.tensor([1.0, 0.1, 1.0])  # errors 1 (dim 0), 0.1 (dim 1)
+    student[1, 1, 2] = 3.0  # error 2 in the constant dimension 2
+    # variances (population, over the 4 steps): 1, 0.01, 0; mean 1.01 / 3
+    # floored at 0.01 x mean: 1, 0.01, 0.01/3 * 1.01; weights = mean / variance
+    mean = 1.01 / 3
+    weights = [mean / 1.0, mean / 0.01, mean / (0.01 * mean)]  # the last capped at 100
+    expected = (1.0 * weights[0] + 0.01 * weights[1] + 4.0 * weights[2]) / 4
+    plain = (1.0 + 0.01 + 4.0) / 4
+    torch.testing.assert_close(belief_distance(teacher, student), torch.tensor(plain))
+    got = belief_distance(teacher, student, standardise=True)
+    torch.testing.assert_close(got, torch.tensor(expected))
+    assert abs(expected - (0.33667 + 0.33667 + 400.0) / 4) < 1e-4  # by hand: 100.168
+    # the weights are constants: d/ds of w (t - s)^2 / 4 = 2 w (s - t) / 4
+    student.requires_grad_(True)
+    belief_distance(teacher, student, standardise=True).backward()
+    torch.testing.assert_close(student.grad[0, 0, 1], torch.tensor(2 * 0.1 * weights[1] / 4))
+    # equal variances in every dimension: the plain distance
+    same = torch.tensor([[0.0, 0.0], [1.0, 1.0]])
+    other = torch.tensor([[0.5, 0.0], [1.0, 0.0]])
+    torch.testing.assert_close(belief_distance(same, other, standardise=True),
+                               belief_distance(same, other))
+
+
+def test_standardise_belief_reaches_both_losses_and_is_off_by_default():
+    teacher, student = _pair()
+    actor = Actor(teacher.rssm.feature_dim, 2, hidden=8, layers=1)
+    plain = TwistDistillationLoss(teacher, student)
+    std = TwistDistillationLoss(teacher, student, standardise_belief=True)
+    assert not plain.standardise_belief
+    for loss in (plain, std):
+        loss.set_keys(student_observation=("next", "student_view"))
+    torch.manual_seed(3)
+    a = plain(_batch())
+    torch.manual_seed(3)
+    b = std(_batch())
+    torch.testing.assert_close(a["prior_kl"], b["prior_kl"])
+    assert not torch.allclose(a["belief_mse"], b["belief_mse"])
+    imagined = ImaginedAlignmentLoss(teacher, student, actor, horizon=3,
+                                     standardise_belief=True)
+    assert imagined.standardise_belief and not ImaginedAlignmentLoss(
+        teacher, student, actor, horizon=3).standardise_belief
+    imagined.set_keys(student_observation=("next", "student_view"))
+    assert imagined(_batch())["imagined_belief_mse"] > 0
+
+
+def test_standardised_belief_distance_of_a_constant_batch_is_the_plain_one():
+    from simdist.objectives.distillation import belief_distance
+
+    teacher, student = torch.ones(3, 4), torch.zeros(3, 4)
+    torch.testing.assert_close(belief_distance(teacher, student, standardise=True),
+                               torch.tensor(4.0))

@@ -68,10 +68,15 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
 
     # the gap-diagnosis script runs on a finished recipe output
     # (the second probe: the perception options, re-rendered extra and held-out images)
+    # (then H1/H2 of the perception study: camera-randomised training renders for the probe
+    # and the student, and the standardised belief distance)
     for variant, extra in (("state", []), ("probe", []),
                            ("probe", ["--depth", "6", "--norm", "layer", "--input-norm", "image",
                                       "--shift", "4", "--extra-renders", "1",
-                                      "--heldout-renders"])):
+                                      "--heldout-renders"]),
+                           ("probe", ["--train-camera"]),
+                           ("pixels", ["--train-camera", "--standardise-belief",
+                                       "--name", "h"])):
         diag = subprocess.run(
             [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
              "--preset", "tiny", "--outputs", str(tmp_path), "--updates", "2",
@@ -80,9 +85,61 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
         assert diag.returncode == 0, diag.stderr
         line = json.loads(diag.stdout.strip().splitlines()[-1])
         assert line["variant"] == variant and line["updates"] == 2
+        if variant == "pixels":
+            assert "mean" in line and len(line["latent_r2"]) == len(line["teacher_r2"]) == 5
+            assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
+            continue
         assert ("mean" in line) if variant == "state" else len(line["r2_test"]) == 5
-        if extra:
+        if "--heldout-renders" in extra:
             assert len(line["r2_heldout"]) == 5 and line["images_train"] % 2 == 0
+
+
+def _recipe_module():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("twist_dmc_recipe", ROOT / "recipes" / "twist_dmc.py")
+    recipe = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = recipe  # dataclasses resolve annotations through it
+    spec.loader.exec_module(recipe)
+    return recipe
+
+
+def test_train_camera_records_d_under_camera_randomisation(tmp_path):
+    import dataclasses
+
+    import pytest
+
+    from simdist.envs import VisualRandomisation
+    from simdist.pipelines import load_episodes
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    assert recipe.Config().train_camera is False  # default: TWIST's training DR
+    assert recipe.training_visual(recipe.Config()) == VisualRandomisation.training()
+    visual = recipe.training_visual(recipe.Config(train_camera=True))
+    evaluation = VisualRandomisation.heldout_evaluation()
+    assert visual.camera and visual.every_step and visual.textures == "train"
+    assert visual.camera_position_jitter == pytest.approx(1.5 * evaluation.camera_position_jitter)
+    assert visual.camera_angle_jitter_deg == pytest.approx(1.5 * evaluation.camera_angle_jitter_deg)
+    with pytest.raises(ConfigError, match="train_camera: must be true or false"):
+        recipe.Config(train_camera="yes")
+
+    cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"], train_camera=True,
+                              output_dir=str(tmp_path), jobs=1)
+    seen = []
+    original = recipe.control_env
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("visual"))
+        return original(*args, **kwargs)
+    recipe.control_env = spy
+    try:
+        recipe.teacher_stage(cfg, "cartpole-balance", 0, tmp_path / "teacher")
+    finally:
+        recipe.control_env = original
+    assert visual in seen
+    episodes = [e.to_tensordict() for e in load_episodes(tmp_path / "teacher")]
+    pixels = torch.cat([e["next", "pixels"] for e in episodes])
+    assert pixels.shape[-3:] == (64, 64, 3) and len(pixels) == cfg.env_steps
 
 
 def test_unknown_task_is_a_clear_error(tmp_path):

@@ -34,7 +34,10 @@ class TwistConfig:
     (``"frame"``). ``state_weight > 0`` adds a term that is **not** in TWIST: the
     teacher's frozen state decoder applied to the student's posterior features should
     give the privileged state, ``state_weight * ||dec_T(h^S, z^S) - s||^2`` (summed over
-    state dimensions), a direct signal for the student's encoder.
+    state dimensions), a direct signal for the student's encoder. ``standardise_belief``
+    (not in TWIST) weighs each dimension of the belief distances of Eq. 3 and Eq. 4 by the
+    inverse of the teacher's batch variance of that dimension
+    (:func:`~simdist.objectives.distillation.belief_distance`).
 
     Examples:
         >>> from simdist.agents import DreamerConfig
@@ -56,6 +59,7 @@ class TwistConfig:
     shift_per: str = "sequence"
     rotate_deg: float = 0.0
     state_weight: float = 0.0
+    standardise_belief: bool = False
 
 
 class TwistStudent:
@@ -87,14 +91,16 @@ class TwistStudent:
                  config: TwistConfig = TwistConfig(), pixels_key=("next", "pixels")):
         self.teacher, self.student, self.config = teacher, student, config
         teacher_obs = ("next", teacher.obs_key)
-        self.distillation = TwistDistillationLoss(teacher.world_model, student)
+        self.distillation = TwistDistillationLoss(teacher.world_model, student,
+                                                  standardise_belief=config.standardise_belief)
         self.distillation.set_keys(teacher_observation=teacher_obs, student_observation=pixels_key)
         self.imagined = None
         if config.imagined:
             self.imagined = ImaginedAlignmentLoss(
                 teacher.world_model, student, teacher.actor, horizon=config.horizon,
                 action_noise_std=config.action_noise_std,
-                max_starts=config.max_imagination_starts)
+                max_starts=config.max_imagination_starts,
+                standardise_belief=config.standardise_belief)
             self.imagined.set_keys(teacher_observation=teacher_obs,
                                    student_observation=pixels_key)
         self.pixels_key = pixels_key

@@ -13,6 +13,39 @@ from simdist.modules.world_model import DreamerWorldModel
 from simdist.objectives.common import SimdistLoss, sequence_batch
 
 
+def belief_distance(teacher: torch.Tensor, student: torch.Tensor,
+                    standardise: bool = False) -> torch.Tensor:
+    """``||h^T - h^S||^2`` summed over the last dimension, averaged over the others.
+
+    With ``standardise``, each dimension's squared error is divided by the teacher's
+    variance of that dimension over the batch (every leading dimension pooled; a constant,
+    no gradient) and multiplied by the mean of those variances, so a batch whose
+    dimensions all have the same variance gives the plain distance: dimensions that carry
+    small-variance information weigh as much as the large ones. Variances are floored at
+    ``STANDARDISE_FLOOR`` x their mean (a dimension's weight is at most 1 / floor).
+
+    Examples:
+        >>> t = torch.tensor([[0.0, 0.0], [2.0, 0.2]])  # variances 1 and 0.01, mean 0.505
+        >>> s = torch.tensor([[0.0, 0.1], [2.0, 0.2]])  # wrong in the small dimension only
+        >>> round(belief_distance(t, s).item(), 4)  # 0.1^2 / 2
+        0.005
+        >>> round(belief_distance(t, s, standardise=True).item(), 4)  # 0.01 * 0.505/0.01 / 2
+        0.2525
+    """
+    squared = (teacher - student).pow(2)
+    if standardise:
+        with torch.no_grad():
+            var = teacher.reshape(-1, teacher.shape[-1]).var(0, unbiased=False)
+            tiny = torch.finfo(var.dtype).tiny  # all-constant batch: every weight 1
+            mean = var.mean().clamp_min(tiny)
+            weight = mean / var.clamp_min((STANDARDISE_FLOOR * mean).clamp_min(tiny))
+        squared = squared * weight
+    return squared.sum(-1).mean()
+
+
+STANDARDISE_FLOOR = 0.01
+
+
 def check_compatible(teacher: DreamerWorldModel, student: DreamerWorldModel) -> None:
     t, s = teacher.rssm, student.rssm
     for field in ("deter_dim", "stoch", "classes", "action_dim", "unimix"):
@@ -33,6 +66,10 @@ class TwistDistillationLoss(SimdistLoss):
     this only rescales the learning rate). The posterior states of both are written into
     the input TensorDict under ``("teacher", ...)`` / ``("student", ...)`` so
     :class:`ImaginedAlignmentLoss` can start from them without refiltering.
+
+    ``standardise_belief=True`` (not in TWIST; default off) weighs each dimension of the
+    belief distance by the inverse of the teacher's batch variance of that dimension
+    (:func:`belief_distance`), so small-variance dimensions count as much as large ones.
 
     Examples:
         >>> import copy
@@ -58,11 +95,13 @@ class TwistDistillationLoss(SimdistLoss):
 
     def __init__(self, teacher: DreamerWorldModel, student: DreamerWorldModel,
                  belief_weight: float = 1.0, prior_weight: float = 1.0,
-                 posterior_weight: float = 1.0, check_inputs: bool = True):
+                 posterior_weight: float = 1.0, check_inputs: bool = True,
+                 standardise_belief: bool = False):
         super().__init__(check_inputs)
         check_compatible(teacher, student)
         self.teacher, self.student = teacher, student
         self.weights = (belief_weight, prior_weight, posterior_weight)
+        self.standardise_belief = standardise_belief
 
     def trainable_parameters(self):
         return list(self.student.parameters())
@@ -86,7 +125,7 @@ class TwistDistillationLoss(SimdistLoss):
     def forward(self, td: TensorDictBase) -> TensorDict:
         teacher, student = self.filter_both(td)
         rssm = self.student.rssm
-        belief = (teacher["belief"] - student["belief"]).pow(2).sum(-1).mean()
+        belief = belief_distance(teacher["belief"], student["belief"], self.standardise_belief)
         prior = rssm.kl(student["prior_logits"], teacher["prior_logits"]).mean()
         posterior = rssm.kl(student["posterior_logits"], teacher["posterior_logits"]).mean()
         wb, wp, wq = self.weights

@@ -8,7 +8,7 @@ from tensordict import TensorDict, TensorDictBase
 from simdist.modules.rssm import RSSMState
 from simdist.modules.world_model import DreamerWorldModel
 from simdist.objectives.common import sequence_batch
-from simdist.objectives.distillation import TwistDistillationLoss
+from simdist.objectives.distillation import TwistDistillationLoss, belief_distance
 
 
 class ImaginedAlignmentLoss(TwistDistillationLoss):
@@ -28,6 +28,8 @@ class ImaginedAlignmentLoss(TwistDistillationLoss):
             deterministic mode).
         horizon: imagined steps (TWIST: 15).
         action_noise_std: exploration noise on the teacher's actions (TWIST ablation: 0).
+        standardise_belief: weigh each belief dimension by the inverse of the teacher's
+            variance over the imagined batch (:func:`belief_distance`; not in TWIST).
 
     Examples:
         >>> import copy
@@ -48,8 +50,9 @@ class ImaginedAlignmentLoss(TwistDistillationLoss):
     def __init__(self, teacher: DreamerWorldModel, student: DreamerWorldModel, teacher_actor,
                  horizon: int = 15, action_noise_std: float = 0.3, belief_weight: float = 1.0,
                  prior_weight: float = 1.0, max_starts: int | None = None,
-                 check_inputs: bool = True):
-        super().__init__(teacher, student, check_inputs=check_inputs)
+                 check_inputs: bool = True, standardise_belief: bool = False):
+        super().__init__(teacher, student, check_inputs=check_inputs,
+                         standardise_belief=standardise_belief)
         if horizon < 1 or action_noise_std < 0:
             raise ValueError("horizon must be >= 1 and action_noise_std >= 0")
         self.teacher_actor = teacher_actor
@@ -81,7 +84,7 @@ class ImaginedAlignmentLoss(TwistDistillationLoss):
                 t_state, self.teacher_actor, self.horizon,
                 action_noise_std=self.action_noise_std, noise=noise)
         student = self.student.imagine(s_state, teacher["action"], noise=noise)
-        belief = (teacher["belief"] - student["belief"]).pow(2).sum(-1).mean()
+        belief = belief_distance(teacher["belief"], student["belief"], self.standardise_belief)
         prior = rssm.kl(student["prior_logits"], teacher["prior_logits"]).mean()
         wb, wp = self.weights
         return self.finish(TensorDict({
