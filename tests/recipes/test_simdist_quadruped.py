@@ -52,7 +52,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     assert all(torch.equal(v, pretrained[k]) for k, v in finetuned.items() if not k.startswith("dynamics"))
     whole = torch.load(tmp_path / "stages" / "round_2" / "whole.pt", weights_only=True)
     assert any(not torch.equal(v, pretrained[k]) for k, v in whole.items() if k.startswith("encoder"))
-    for name in ("rerun_before.rrd", "rerun_after.rrd"):
+    for name in ("rerun_before.rrd", "rerun_after.rrd", "planner_before_finetuning.mp4",
+                 "planner_after_finetuning.mp4"):
         assert (tmp_path / name).stat().st_size > 0
     # every training loop logged its updates (TorchRL CSV logger) and the curves are drawn
     for scalar in ("pretrain/loss_consistency", "round_2/simdist/loss_consistency",

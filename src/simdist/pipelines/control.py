@@ -103,6 +103,6 @@ def evaluate_returns(task: str, policy, primer, seed: int, episodes: int, steps:
     try:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            return returns_stats(rollout(env, policy, steps))
+            return returns_stats(rollout(env, policy, steps, desc=f"evaluate {task}"))
     finally:
         env.close()

@@ -12,6 +12,7 @@ from tensordict import TensorDict
 from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
 from torchrl.envs import InitTracker, TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm import tqdm
 
 from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
@@ -29,10 +30,21 @@ def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), tas
     return env
 
 
-def rollout(env, policy, steps: int) -> TensorDict:
-    """``[episodes, steps]`` of one episode per world, deterministic exploration mode."""
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        return env.rollout(steps, policy, break_when_any_done=False)
+def rollout(env, policy, steps: int, desc: str | None = None) -> TensorDict:
+    """``[episodes, steps]`` of one episode per world, deterministic exploration mode.
+
+    With ``desc``, a progress bar counts the control steps (an evaluation of 32 planned
+    episodes takes minutes on a CPU and would otherwise be silent).
+    """
+    bar = tqdm(total=steps, desc=desc, unit="step", leave=False) if desc else None
+    try:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            return env.rollout(steps, policy, break_when_any_done=False,
+                               callback=(lambda *_: bar.update()) if bar else None)
+    finally:
+        if bar is not None:
+            bar.update(steps - bar.n)  # TorchRL skips the callback after the last step
+            bar.close()
 
 
 def progress_stats(td: TensorDict, command_index: int) -> dict:

@@ -48,6 +48,7 @@ from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, stage_seed,
                                train_resumable)
+from simdist.pipelines.evaluate_agent import record_video
 from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
@@ -208,7 +209,8 @@ def evaluate(cfg: Config, target: str, policy, primers=(), seed_offset: int = 10
     env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
                          cfg.seed + seed_offset, primers=primers, task=cfg.task)
     command = env.base_env.observation_layout["command"].start
-    stats = progress_stats(rollout(env, policy, cfg.episode_steps), command)
+    stats = progress_stats(rollout(env, policy, cfg.episode_steps, desc=f"evaluate in {target}"),
+                           command)
     env.close()
     return stats
 
@@ -309,7 +311,7 @@ def evaluate_planner(cfg: Config, agent: SimDistAgent, target: str,
                          cfg.seed + seed_offset, primers=[agent.make_primer()], task=cfg.task)
     spec = env.action_spec
     policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
-    td = rollout(env, policy, cfg.episode_steps)
+    td = rollout(env, policy, cfg.episode_steps, desc=f"evaluate planner in {target}")
     stats = progress_stats(td, env.base_env.observation_layout["command"].start)
     env.close()
     return stats, td
@@ -326,7 +328,8 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
         spec = env.action_spec
         policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(),
                               seed=seed + start)
-        batches.append(rollout(env, policy, cfg.episode_steps).select(*TARGET_KEYS))
+        batches.append(rollout(env, policy, cfg.episode_steps, desc=f"collect in {cfg.target}")
+                       .select(*TARGET_KEYS))
         env.close()
     return torch.cat(batches, 0)
 
@@ -442,6 +445,10 @@ def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out
                                                str(out / f"rerun_{label}.rrd"), cfg.episode_steps,
                                                application_id=f"simdist_{label}_finetuning")
         env.close()
+        # the same episode (same world seed) as a video, for readers without a rerun viewer
+        paths[f"video_{label}"] = str(record_video(
+            agent, cfg.task, out / f"planner_{label}_finetuning.mp4", target=cfg.target,
+            steps=cfg.episode_steps, seed=cfg.seed + 10_000, planner=cfg.planner()))
     return paths
 
 
@@ -499,8 +506,8 @@ def run(cfg: Config) -> dict:
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
         print(f"training curves: {out / 'training_curves.png'} (scalars in {out / 'logs'})")
-    print(f"rerun recordings (open with `rerun FILE`): {recordings['before']}, "
-          f"{recordings['after']}")
+    print("rerun recordings (open with `rerun FILE`) and videos: "
+          + ", ".join(recordings.values()))
     return summary
 
 
