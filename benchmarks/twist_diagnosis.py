@@ -48,19 +48,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
-import twist_dmc as recipe  # noqa: E402  (the recipe's config and stage helpers)
-from simdist.agents import DreamerPolicy, TwistStudent  # noqa: E402
-from simdist.envs import VisualRandomisation  # noqa: E402
-from simdist.modules import (DreamerWorldModel, PixelEncoder, RandomRotate,  # noqa: E402
+from simdist.recipes import twist_dmc as recipe  # (config and stage helpers)
+from simdist.agents import DreamerPolicy, TwistStudent
+from simdist.envs import VisualRandomisation
+from simdist.modules import (DreamerWorldModel, PixelEncoder, RandomRotate,
                              RandomShift)
-from simdist.pipelines import (EpisodeReplay, control_env, evaluate_returns,  # noqa: E402
+from simdist.pipelines import (EpisodeReplay, control_env, evaluate_returns,
                                load_episodes, mean_metrics, train_resumable)
 
 

@@ -95,12 +95,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
 
 
 def _recipe_module():
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("twist_dmc_recipe", ROOT / "recipes" / "twist_dmc.py")
-    recipe = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = recipe  # dataclasses resolve annotations through it
-    spec.loader.exec_module(recipe)
-    return recipe
+    from simdist.recipes import twist_dmc
+    return twist_dmc
 
 
 def test_train_camera_records_d_under_camera_randomisation(tmp_path):
@@ -156,11 +152,7 @@ def test_an_unavailable_device_is_a_clear_error_before_any_work(tmp_path):
 
 def test_help_lists_every_config_field_and_bad_values_fail_before_work(tmp_path):
     import dataclasses
-    import importlib.util
-    spec = importlib.util.spec_from_file_location("twist_dmc_recipe", ROOT / "recipes" / "twist_dmc.py")
-    recipe = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = recipe  # dataclasses resolve annotations through it
-    spec.loader.exec_module(recipe)
+    recipe = _recipe_module()
     text = " ".join(_run("--help").stdout.split())
     for f in dataclasses.fields(recipe.Config):
         assert "--" + f.name.replace("_", "-") in text, f.name

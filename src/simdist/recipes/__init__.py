@@ -8,9 +8,10 @@
   dataset on disk.
 - ``simdist-evaluate`` (:mod:`simdist.recipes.evaluate`): any saved agent in any task and
   target.
+- ``simdist-twist`` (:mod:`simdist.recipes.twist_dmc`): TWIST on the control suite, with
+  its ablations and the pixel-Dreamer baselines.
 
 ``python -m simdist.recipes.<module>`` and, in a checkout, ``python recipes/<module>.py``
-run the same code; each script's ``--help`` lists its flags with their defaults. The
-TWIST recipe is, for now, only ``recipes/twist_dmc.py`` in a checkout. The recipes are
+run the same code; each script's ``--help`` lists its flags with their defaults. The recipes are
 scripts, not API: import them only to reuse a recipe's ``Config``.
 """

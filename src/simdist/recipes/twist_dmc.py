@@ -1,0 +1,405 @@
+"""TWIST on the control suite: distil an image student from a state teacher, with baselines.
+
+Per task and seed (each stage checkpointed under ``--output-dir``; rerunning skips
+finished stages and a killed stage resumes from its last checkpoint):
+
+1. ``teacher``: Dreamer on privileged state, collecting online; every step also records
+   the domain-randomised image (randomised every step), building ``D = {(s, o, a, r)}``.
+2. ``oracle``: the teacher itself, evaluated (the upper bound).
+3. ``twist`` and its ablations (``no_imagined``, ``no_noise``): an image RSSM trained
+   with the teacher frozen on slices of ``D`` with latent distillation (Eq. 3) plus
+   imagined-rollout alignment (Eq. 4); deployed as pixels -> student latent -> the
+   teacher's actor.
+4. ``dreamer_dr`` / ``dreamer_no_dr``: Dreamer from pixels, with and without visual DR,
+   with the same environment-step budget as the teacher (at the CPU default with fewer
+   updates: a pixel update costs ~4x a state update; ``paper`` gives all the same ratio).
+
+Every method is evaluated on **held-out** textures (train colours, camera jitter; drawn
+once per episode), on the same seeds.
+
+The stages that need the teacher (teacher, oracle, students) form one chain; each pixel
+Dreamer is a chain of its own. ``--jobs 2`` (the default on two or more cores) runs the
+chains side by side in two processes, one torch thread each.
+
+Usage:
+    python recipes/twist_dmc.py                    # cartpole-balance, 2 CPU cores, ~25 min
+    python recipes/twist_dmc.py --preset tiny      # seconds, used by the tests
+    python recipes/twist_dmc.py --preset paper --device cuda   # six tasks x 3 seeds, 500K steps
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import simdist  # noqa: F401  (headless GL set-up before dm_control)
+import torch
+
+from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStudent
+from simdist.envs import TASKS, VisualRandomisation
+from simdist.modules import RSSM_SIZES, DreamerWorldModel, PixelEncoder
+from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
+                               evaluate_returns, load_episodes, mean_metrics, stage_seed,
+                               train_dreamer_online, train_resumable)
+from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
+from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
+from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_jobs,
+                           write_json_atomic)
+from simdist.utils.cli import check, check_builds, check_positive, parse_config
+from simdist.viz.student_view import record_student_episode
+
+TWIST = "TWIST (student)"
+# stage suffix -> (table name, TwistConfig overrides): the paper's two ablations
+STUDENTS = {"twist": (TWIST, {}),
+            "no_imagined": ("TWIST w/o imagined alignment", {"imagined": False}),
+            "no_noise": ("TWIST w/o action noise", {"action_noise_std": 0.0})}
+# stage suffix -> (table name, visual randomisation while training)
+PIXEL_DREAMERS = {"dreamer_dr": ("Dreamer from pixels + DR", VisualRandomisation.training()),
+                  "dreamer_no_dr": ("Dreamer from pixels, no DR", None)}
+
+
+@dataclass
+class Config:
+    """Flat recipe config; presets below override fields. Saved as ``config.json``."""
+
+    tasks: list[str] = field(default_factory=lambda: ["cartpole-balance"])  # control-suite tasks
+    seeds: list[int] = field(default_factory=lambda: [0])  # one chain of stages per task and seed
+    model_size: str = "compact"  # RSSM size of teacher, student and pixel Dreamers
+    # online budget: the same environment steps for the teacher and both pixel Dreamers
+    env_steps: int = 6000  # measured: 4000 learns on one seed of two, 6000 on the one tried
+    prefill_steps: int = 1000  # random-action steps before the first update
+    train_every: int = 2  # teacher: one update per 2 agent steps (measured: 8 does not learn)
+    # pixel Dreamers: an update costs ~4x the teacher's on CPU, so they get fewer updates
+    # at the default (the paper preset gives every method the same ratio)
+    pixel_train_every: int = 20  # pixel Dreamers: one update per this many agent steps
+    episode_steps: int = 500  # steps per training episode
+    slice_len: int = 50  # online Dreamers: steps per training slice
+    slices: int = 16  # online Dreamers: slices per update
+    # student (TWIST: slices of 50, imagination horizon 15, action noise 0.3)
+    student_updates: int = 300  # student distillation updates on the teacher's data
+    student_slice_len: int = 50  # student: steps per slice
+    student_slices: int = 8  # student: slices per update
+    horizon: int = 15  # imagination horizon (actor-critic and imagined alignment)
+    action_noise_std: float = 0.3  # TWIST's action noise in the imagined rollouts
+    imagination_starts: int = 256  # per update, for the actor-critic and Eq. 4
+    # The student's pixel encoder and its input augmentation (benchmarks/README.md, TWIST
+    # probe). Measured with the supervised probe (900 updates of 128 images): the evaluation's
+    # camera jitter drives the plain CNN's held-out R^2 negative (cart x -3.5, cos(pole)
+    # -1.7); LayerNorm + per-image input standardisation + a 4 px random shift give +0.41 /
+    # +0.41. Student return at 300 updates unchanged within noise (212 +- 29 vs 215 +- 43).
+    student_depth: int | None = None  # None: the model size's CNN depth (32: probe +0.05-0.15)
+    student_norm: str | None = "layer"  # None or "layer" (PixelEncoder.norm)
+    student_input_norm: str = "image"  # or "fixed" (PixelEncoder.input_norm)
+    student_shift_pad: int = 4  # DrQ random shift in pixels, 0: none
+    student_shift_per: str = "sequence"  # one draw per slice, or "frame"
+    student_rotate_deg: float = 0.0  # random in-plane rotation (probe: within noise at 5)
+    student_lr: float = 3e-4  # 1e-3: probe better, student return not (186 +- 23 at 900)
+    # The teacher stage records D under training randomisation; True adds a camera-pose
+    # draw every step (TRAIN_CAMERA_JITTER: 1.5x the evaluation's widths, a margin instead
+    # of the test scene's exact range). Not in TWIST's training DR (camera at evaluation
+    # only). Measured (benchmarks/README.md, TWIST perception, H1; one seed): probe held-out
+    # R^2 (x, cos) at 900 updates .40/.28 vs .47/.31 without; student 245 +- 28 vs 240 +- 44.
+    train_camera: bool = False
+    # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
+    actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
+    critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
+    # evaluation on held-out scenes
+    eval_episodes: int = 10  # measured: with 4, one student scored 209 and 250 on two draws
+    eval_steps: int = 500  # steps per evaluation episode
+    record: bool = True  # a rerun recording of one student episode
+    output_dir: str = "outputs/twist_dmc"  # stages, results and plots go here
+    # where the networks train and act ("cpu", "cuda", "auto"); envs, rendering and
+    # replay stay on the CPU. Not part of the results: a run may resume on another device.
+    device: str = "cpu"
+
+    # stages run side by side in this many processes (teacher chain beside the pixel
+    # Dreamers). Not part of the results.
+    jobs: int = min(2, os.cpu_count() or 1)  # 2 on two or more cores
+    # scalar logs of every training update under <output_dir>/logs: csv, tensorboard
+    # (needs tensorboard), wandb (offline; needs wandb) or none. Not part of the results.
+    logger: str = "csv"
+
+    def __post_init__(self):
+        control = sorted(t for t in TASKS if not TASKS[t].is_robot)
+        unknown = [t for t in self.tasks if t not in control]
+        check(self.tasks and not unknown, "tasks",
+              f"unknown control-suite tasks {unknown or self.tasks}; valid: {control}")
+        check(self.seeds and len(set(self.seeds)) == len(self.seeds), "seeds",
+              f"need distinct seeds, got {self.seeds}")
+        check(self.model_size in RSSM_SIZES, "model_size",
+              f"unknown size {self.model_size!r}; valid: {sorted(RSSM_SIZES)}")
+        check_positive(self, "env_steps", "train_every", "pixel_train_every", "episode_steps",
+                       "slice_len", "slices", "student_slice_len", "student_slices", "horizon",
+                       "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
+                       "actor_lr", "critic_lr", "jobs")
+        check(isinstance(self.train_camera, bool), "train_camera",
+              f"must be true or false, got {self.train_camera!r}")
+        check_positive(self, "prefill_steps", "student_updates", "action_noise_std",
+                       "student_shift_pad", "student_rotate_deg", allow_zero=True)
+        check(self.student_depth is None or self.student_depth > 0, "student_depth",
+              f"must be > 0 or None, got {self.student_depth}")
+        check(self.student_norm in PixelEncoder.NORMS, "student_norm",
+              f"must be one of {PixelEncoder.NORMS}, got {self.student_norm!r}")
+        check(self.student_input_norm in PixelEncoder.INPUT_NORMS, "student_input_norm",
+              f"must be one of {PixelEncoder.INPUT_NORMS}, got {self.student_input_norm!r}")
+        check(self.student_shift_per in ("sequence", "frame"), "student_shift_per",
+              f"must be 'sequence' or 'frame', got {self.student_shift_per!r}")
+        check_builds("online budget", self.online)
+        check_builds("dreamer", self.dreamer)
+        check_builds("device", resolve_device, self.device)
+        check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
+
+    def online(self, pixels: bool = False) -> OnlineConfig:
+        return OnlineConfig(env_steps=self.env_steps, prefill_steps=self.prefill_steps,
+                            train_every=self.pixel_train_every if pixels else self.train_every,
+                            episode_steps=self.episode_steps, slice_len=self.slice_len,
+                            slices=self.slices)
+
+    def dreamer(self) -> DreamerConfig:
+        return DreamerConfig(size=self.model_size, horizon=self.horizon,
+                             imagination_starts=self.imagination_starts,
+                             actor_lr=self.actor_lr, critic_lr=self.critic_lr)
+
+
+PRESETS = {
+    "default": {},
+    "tiny": {"model_size": "tiny", "env_steps": 40, "prefill_steps": 20, "train_every": 10,
+             "pixel_train_every": 10,
+             "episode_steps": 20, "slice_len": 8, "slices": 2, "student_updates": 3,
+             "student_slice_len": 8, "student_slices": 2, "horizon": 3,
+             "imagination_starts": 8, "eval_episodes": 2, "eval_steps": 10},
+    "paper": {"tasks": ["ball_in_cup-catch", "cartpole-balance", "cheetah-run",
+                        "hopper-stand", "walker-walk", "finger-turn_easy"],
+              "seeds": [0, 1, 2], "model_size": "paper", "env_steps": 500_000,
+              "prefill_steps": 5000, "train_every": 5, "pixel_train_every": 5, "slice_len": 50,
+              "slices": 16, "actor_lr": 8e-5, "critic_lr": 8e-5,
+              "student_updates": 100_000, "student_slices": 16, "imagination_starts": 800,
+              "eval_episodes": 10},
+}
+
+
+# -- stages -----------------------------------------------------------------------------
+# training camera jitter when Config.train_camera: 1.5x the evaluation's half-widths
+# (VisualRandomisation defaults, +-0.1 m and +-5 deg): covers the test poses with a margin
+# without being fitted to them
+TRAIN_CAMERA_JITTER = {
+    "camera_position_jitter": round(1.5 * VisualRandomisation.camera_position_jitter, 6),
+    "camera_angle_jitter_deg": round(1.5 * VisualRandomisation.camera_angle_jitter_deg, 6)}
+
+
+def training_visual(cfg: Config) -> VisualRandomisation:
+    """The randomisation under which the teacher stage records D's images."""
+    if cfg.train_camera:
+        return VisualRandomisation.training(camera=True, **TRAIN_CAMERA_JITTER)
+    return VisualRandomisation.training()
+
+
+def state_dim(task: str) -> int:
+    env = control_env(task, 0)
+    try:
+        return env.observation_spec["state"].shape[-1], env.action_spec.shape[-1]
+    finally:
+        env.close()
+
+
+def teacher_agent(cfg: Config, task: str) -> DreamerAgent:
+    return DreamerAgent.for_state(*state_dim(task), cfg.dreamer()).to(cfg.device)
+
+
+def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
+    """State Dreamer that records the domain-randomised image of every step it collects."""
+    torch.manual_seed(seed)
+    agent = teacher_agent(cfg, task)
+    env = control_env(task, seed, pixels=True, visual=training_visual(cfg),
+                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
+    out = train_dreamer_online(agent, env, cfg.online(), stage_dir,
+                               dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}",
+                               seed=stage_seed(seed, f"{task}/teacher"),
+                               logger=make_logger(cfg.logger, cfg.output_dir))
+    env.close()
+    # a self-describing file for recipes/evaluate.py (agent.pt is the training checkpoint)
+    agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
+    return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
+            "agent": str(stage_dir / "teacher_agent.pt"),
+            "episode_returns": out["episode_returns"], "updates": out["updates"],
+            "last": mean_metrics(out["history"])}
+
+
+def load_teacher(cfg: Config, task: str, teacher: dict) -> DreamerAgent:
+    agent = teacher_agent(cfg, task)
+    agent.load_state_dict(load_checkpoint(teacher["checkpoint"])["agent"])
+    return agent
+
+
+def evaluate(cfg: Config, task: str, seed: int, policy, primer, pixels: bool) -> dict:
+    """Held-out scenes (textures never seen in training), the same seeds for all methods."""
+    visual = VisualRandomisation.heldout_evaluation() if pixels else None
+    return evaluate_returns(task, policy, primer, seed + 10_000, cfg.eval_episodes,
+                            cfg.eval_steps, pixels, visual)
+
+
+def twist_config(cfg: Config, overrides: dict) -> TwistConfig:
+    """The recipe's student settings, with an ablation's ``overrides`` on top."""
+    config = TwistConfig(horizon=cfg.horizon, action_noise_std=cfg.action_noise_std,
+                         max_imagination_starts=cfg.imagination_starts,
+                         shift_pad=cfg.student_shift_pad, shift_per=cfg.student_shift_per,
+                         rotate_deg=cfg.student_rotate_deg, lr=cfg.student_lr)
+    return dataclasses.replace(config, **overrides)
+
+
+def new_student(cfg: Config, task: str, teacher: DreamerAgent, overrides: dict) -> TwistStudent:
+    student = DreamerWorldModel.student(teacher.actor.action_dim, cfg.model_size,
+                                        depth=cfg.student_depth, norm=cfg.student_norm,
+                                        input_norm=cfg.student_input_norm)
+    return TwistStudent(teacher, student, twist_config(cfg, overrides)).to(cfg.device)
+
+
+def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
+                  stage_dir: Path) -> dict:
+    """Distils a student from the frozen teacher on ``D``, then evaluates it from pixels."""
+    torch.manual_seed(seed)
+    agent = load_teacher(cfg, task, teacher)
+    twist = new_student(cfg, task, agent, overrides)
+    replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
+                           cfg.student_slices)
+    for episode in load_episodes(teacher["data"]):
+        replay.add(episode.to_tensordict())
+    history = train_resumable(twist.update, replay.sample, cfg.student_updates,
+                              {"twist": twist}, stage_dir / "student.pt",
+                              every=max(1, cfg.student_updates // 10),
+                              desc=f"{stage_dir.name}", seed=stage_seed(seed, stage_dir.name),
+                              logger=make_logger(cfg.logger, cfg.output_dir))
+    # deployable alone (carries the teacher's actor): recipes/evaluate.py --checkpoint
+    twist.save(stage_dir / "student_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
+    result = evaluate(cfg, task, seed, twist.policy(), twist.make_primer(), pixels=True)
+    return {**result, "checkpoint": str(stage_dir / "student.pt"),
+            "agent": str(stage_dir / "student_agent.pt"),
+            "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
+
+
+def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Path) -> dict:
+    torch.manual_seed(seed)
+    agent = DreamerAgent.for_pixels(state_dim(task)[1], cfg.dreamer()).to(cfg.device)
+    env = control_env(task, seed, pixels=True, visual=visual,
+                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
+    out = train_dreamer_online(agent, env, cfg.online(pixels=True), stage_dir,
+                               dreamer_keys("pixels"), desc=stage_dir.name,
+                               seed=stage_seed(seed, stage_dir.name),
+                               logger=make_logger(cfg.logger, cfg.output_dir))
+    env.close()
+    agent.save(stage_dir / "dreamer_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
+    result = evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
+                      pixels=True)
+    return {**result, "agent": str(stage_dir / "dreamer_agent.pt"), "episode_returns": out["episode_returns"], "updates": out["updates"],
+            "last": mean_metrics(out["history"])}
+
+
+def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path) -> dict:
+    agent = load_teacher(cfg, task, teacher)
+    twist = new_student(cfg, task, agent, {})
+    twist.load_state_dict(load_checkpoint(out / "stages" / f"{task}_s{seed}_twist" /
+                                          "student.pt")["state"]["twist"])
+    env = control_env(task, seed + 10_000, pixels=True,
+                      visual=VisualRandomisation.heldout_evaluation(),
+                      max_episode_steps=cfg.eval_steps, primer=twist.make_primer())
+    path = record_student_episode(env, agent, twist, str(out / "rerun_student.rrd"),
+                                  cfg.eval_steps)
+    env.close()
+    return {"path": path}
+
+
+# -- the recipe -------------------------------------------------------------------------
+def stage_runner(cfg: Config) -> StageRunner:
+    return StageRunner(cfg.output_dir, cfg, runtime_keys=("device", "jobs", "logger"))
+
+
+def _stage(runner: StageRunner, name: str, fn) -> dict:
+    if runner.done(name):
+        print(f"stage {name}: already done, reusing its results", flush=True)
+    return runner.run(name, fn)
+
+
+def teacher_chain(cfg: Config, task: str, seed: int) -> None:
+    """teacher -> oracle -> the three students: the stages that need the teacher."""
+    runner, key = stage_runner(cfg), f"{task}_s{seed}"
+    teacher = _stage(runner, f"{key}_teacher", lambda d: teacher_stage(cfg, task, seed, d))
+
+    def oracle(d):
+        agent = load_teacher(cfg, task, teacher)
+        return evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
+                        pixels=False)
+
+    _stage(runner, f"{key}_oracle", oracle)
+    for suffix, (_, changes) in STUDENTS.items():
+        _stage(runner, f"{key}_{suffix}",
+               lambda d, c=changes: student_stage(cfg, task, seed, teacher, c, d))
+
+
+def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
+    """One pixel-Dreamer baseline: independent of the teacher, so it can run beside it."""
+    runner = stage_runner(cfg)
+    visual = PIXEL_DREAMERS[suffix][1]
+    _stage(runner, f"{task}_s{seed}_{suffix}",
+           lambda d: pixel_dreamer_stage(cfg, task, seed, visual, d))
+
+
+def main(argv=None):
+    cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
+                          prog="twist_dmc.py")
+    out = Path(cfg.output_dir)
+    runner = stage_runner(cfg)  # refuses a different config before any work starts
+
+    # Longest chains first, so that two processes finish close together.
+    chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
+    chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
+               for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
+    start = time.perf_counter()
+    run_jobs(chains, cfg.jobs)
+
+    results, records = {}, {}
+    for task in cfg.tasks:
+        methods = {}
+        for seed in cfg.seeds:
+            key = f"{task}_s{seed}"
+            teacher = runner.result(f"{key}_teacher")
+            runs = {ORACLE: runner.result(f"{key}_oracle")}
+            for suffix, (name, _) in {**STUDENTS, **PIXEL_DREAMERS}.items():
+                runs[name] = runner.result(f"{key}_{suffix}")
+            records[key] = {"teacher": teacher, **runs}
+            for name, r in runs.items():
+                entry = methods.setdefault(name, {"returns": [], "seed_means": []})
+                entry["returns"] += r["returns"]
+                entry["seed_means"].append(r["mean"])
+        results[task] = methods
+
+    recording = None
+    if cfg.record:
+        task, seed = cfg.tasks[0], cfg.seeds[0]
+        recording = _stage(runner, "recording", lambda d: recording_stage(
+            cfg, task, seed, records[f"{task}_s{seed}"]["teacher"], out))
+    wall = time.perf_counter() - start
+    print("\n" + format_table(results))
+    print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
+    print(f"wall time this run: {wall:.0f} s with {cfg.jobs} process(es)")
+    write_json_atomic(out / "results.json",  # a crash mid-write keeps the previous file
+        {"config": dataclasses.asdict(cfg), "results": results, "summary": summarise(results),
+         "runs": records, "recording": recording, "timings_s": runner.timings,
+         "wall_s": wall, "jobs": cfg.jobs})
+    plot_results(results, out / "returns.png")
+    print(f"wrote {out / 'results.json'} and {out / 'returns.png'}")
+    if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
+        print(f"training curves: {out / 'training_curves.png'} (scalars in {out / 'logs'})")
+    if recording:
+        print(f"rerun recording (open with `rerun FILE`): {recording['path']}")
+
+
+def cli() -> None:
+    """The ``simdist-twist`` console script: :func:`main` on ``sys.argv``, exit status 0."""
+    main()
+
+
+if __name__ == "__main__":
+    main()
