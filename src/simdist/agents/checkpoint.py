@@ -206,3 +206,27 @@ def load_agent(path: str | os.PathLike, map_location=None):
 
     ckpt = read_agent_checkpoint(path)
     return getattr(agents, ckpt["class"]).from_checkpoint(ckpt, path, map_location)
+
+
+class LoadableAgent:
+    """Mixin: ``load(path)`` for an agent class whose ``save`` writes a self-describing file.
+
+    The class provides ``from_checkpoint(ckpt, path, map_location)``; the file's stored
+    class must be this class's name.
+    """
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, map_location=None):
+        """Rebuilds an agent from a file its ``save`` wrote (weights-only load).
+
+        Args:
+            path: the file.
+            map_location: device for the agent (default: the CPU).
+
+        Raises:
+            FileNotFoundError, CorruptCheckpointError: naming the file (see
+                :func:`read_agent_checkpoint`).
+        """
+        ckpt = read_agent_checkpoint(path, expected=cls.__name__)
+        return cls.from_checkpoint(ckpt, path, map_location)
+

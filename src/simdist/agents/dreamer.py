@@ -115,7 +115,7 @@ class DreamerPolicy(TensorDictModuleBase):
         return td
 
 
-class DreamerAgent:
+class DreamerAgent(ckpt_format.LoadableAgent):
     """World model, actor and critic with their losses and optimisers.
 
     Examples:
@@ -233,21 +233,6 @@ class DreamerAgent:
         return ckpt_format.write_agent_checkpoint(path, "DreamerAgent", self.describe(),
                                                   self.weights(), optim if optimisers else None,
                                                   meta)
-
-    @classmethod
-    def load(cls, path: str | os.PathLike, map_location=None) -> DreamerAgent:
-        """Rebuilds an agent from a file :meth:`save` wrote (weights-only load).
-
-        Args:
-            path: the file.
-            map_location: device for the agent (default: the CPU).
-
-        Raises:
-            FileNotFoundError, CorruptCheckpointError: naming the file (see
-                :func:`~simdist.agents.checkpoint.read_agent_checkpoint`).
-        """
-        ckpt = ckpt_format.read_agent_checkpoint(path, expected="DreamerAgent")
-        return cls.from_checkpoint(ckpt, path, map_location)
 
     @classmethod
     def from_config(cls, config: dict, path="<checkpoint>") -> DreamerAgent:

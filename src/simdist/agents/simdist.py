@@ -109,7 +109,7 @@ class SimDistPolicy(TensorDictModuleBase):
         return td
 
 
-class SimDistAgent:
+class SimDistAgent(ckpt_format.LoadableAgent):
     """Owns the world model, its two losses and their optimisers.
 
     ``pretrain_update`` trains everything on simulation slices; ``finetune_update``
@@ -243,21 +243,6 @@ class SimDistAgent:
         return ckpt_format.write_agent_checkpoint(
             path, "SimDistAgent", self.describe(), {"world_model": self.world_model.state_dict()},
             optim if optimisers else None, meta)
-
-    @classmethod
-    def load(cls, path: str | os.PathLike, map_location=None) -> SimDistAgent:
-        """Rebuilds an agent from a file :meth:`save` wrote (weights-only load).
-
-        Args:
-            path: the file.
-            map_location: device for the agent (default: the CPU).
-
-        Raises:
-            FileNotFoundError, CorruptCheckpointError: naming the file (see
-                :func:`~simdist.agents.checkpoint.read_agent_checkpoint`).
-        """
-        ckpt = ckpt_format.read_agent_checkpoint(path, expected="SimDistAgent")
-        return cls.from_checkpoint(ckpt, path, map_location)
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict, path="<checkpoint>", map_location=None) -> SimDistAgent:

@@ -62,7 +62,7 @@ class TwistConfig:
     standardise_belief: bool = False
 
 
-class TwistStudent:
+class TwistStudent(ckpt_format.LoadableAgent):
     """A pixel student distilled from a trained :class:`DreamerAgent` (the teacher).
 
     Args:
@@ -201,21 +201,6 @@ class TwistStudent:
         return ckpt_format.write_agent_checkpoint(
             path, "TwistStudent", config, weights,
             {"optim": self.optim.state_dict()} if optimisers else None, meta)
-
-    @classmethod
-    def load(cls, path: str | os.PathLike, map_location=None) -> TwistStudent:
-        """Rebuilds a student (and its frozen teacher) from a file :meth:`save` wrote.
-
-        Args:
-            path: the file.
-            map_location: device for both models (default: the CPU).
-
-        Raises:
-            FileNotFoundError, CorruptCheckpointError: naming the file (see
-                :func:`~simdist.agents.checkpoint.read_agent_checkpoint`).
-        """
-        ckpt = ckpt_format.read_agent_checkpoint(path, expected="TwistStudent")
-        return cls.from_checkpoint(ckpt, path, map_location)
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict, path="<checkpoint>", map_location=None) -> TwistStudent:
