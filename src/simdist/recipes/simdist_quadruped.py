@@ -334,6 +334,23 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
     return torch.cat(batches, 0)
 
 
+def finetune_and_evaluate(cfg: Config, k: int, agent: SimDistAgent, update, optim,
+                          name: str, what: str, sample, stage_dir: Path, logger=None) -> dict:
+    """One method of a round: ``cfg.finetune_updates`` resumable updates, its weights and a
+    self-describing agent file saved, its planner evaluated in the target."""
+    hist = train_resumable(update, sample, cfg.finetune_updates,
+                           {"wm": agent.world_model, "opt": optim}, stage_dir / f"{name}.ckpt",
+                           desc=f"round {k + 1}: {what}",
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/{name}"),
+                           logger=logger, log_prefix=f"round_{k + 1}/{name}")
+    save_atomic(agent.world_model.state_dict(), stage_dir / f"{name}.pt")
+    return {name: str(stage_dir / f"{name}.pt"),
+            f"{name}_agent": save_agent(cfg, agent, stage_dir / f"{name}_agent.pt",
+                                        target=cfg.target, method=name),
+            f"{name}_eval": evaluate_planner(cfg, agent, cfg.target)[0],
+            f"{name}_loss": mean_metrics(hist)}
+
+
 def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_dir: Path,
                 previous: dict | None, logger=None) -> dict:
     """One round: collect with the current SimDist planner, finetune all methods, evaluate."""
@@ -354,31 +371,14 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
                "data": [*(previous["data"] if previous else []), str(data_dir)]}
 
     # SimDist: dynamics only, continuing from the previous round's dynamics.
-    hist = train_resumable(simdist_agent.finetune_update, sample, cfg.finetune_updates,
-                           {"wm": simdist_agent.world_model, "opt": simdist_agent.finetune_optim},
-                           stage_dir / "simdist.ckpt", desc=f"round {k + 1}: finetune dynamics",
-                           seed=stage_seed(cfg.seed, f"round_{k + 1}/simdist"),
-                           logger=logger, log_prefix=f"round_{k + 1}/simdist")
-    save_atomic(simdist_agent.world_model.state_dict(), stage_dir / "simdist.pt")
-    results["simdist"] = str(stage_dir / "simdist.pt")
-    results["simdist_agent"] = save_agent(cfg, simdist_agent, stage_dir / "simdist_agent.pt",
-                                          target=cfg.target, method="simdist")
-    results["simdist_eval"], _ = evaluate_planner(cfg, simdist_agent, cfg.target)
-    results["simdist_loss"] = mean_metrics(hist)
-
+    results.update(finetune_and_evaluate(
+        cfg, k, simdist_agent, simdist_agent.finetune_update, simdist_agent.finetune_optim,
+        "simdist", "finetune dynamics", sample, stage_dir, logger))
     # Ablation: the whole world model on the same data, same number of updates.
     whole = load_agent(cfg, pretrained, previous and previous["whole"])
-    hist = train_resumable(whole.finetune_whole_update, sample, cfg.finetune_updates,
-                           {"wm": whole.world_model, "opt": whole.whole_optim},
-                           stage_dir / "whole.ckpt", desc=f"round {k + 1}: finetune whole model",
-                           seed=stage_seed(cfg.seed, f"round_{k + 1}/whole"),
-                           logger=logger, log_prefix=f"round_{k + 1}/whole")
-    save_atomic(whole.world_model.state_dict(), stage_dir / "whole.pt")
-    results["whole"] = str(stage_dir / "whole.pt")
-    results["whole_agent"] = save_agent(cfg, whole, stage_dir / "whole_agent.pt",
-                                        target=cfg.target, method="whole")
-    results["whole_eval"], _ = evaluate_planner(cfg, whole, cfg.target)
-    results["whole_loss"] = mean_metrics(hist)
+    results.update(finetune_and_evaluate(
+        cfg, k, whole, whole.finetune_whole_update, whole.whole_optim,
+        "whole", "finetune whole model", sample, stage_dir, logger))
 
     # Baseline: continue the expert's SAC on the same target data.
     sac = OfflineSAC(Expert.load(expert_path),
