@@ -1,13 +1,9 @@
-"""``python recipes/generate_dataset.py ...`` runs the ``simdist-dataset`` console script.
+"""``python recipes/generate_dataset.py ...`` runs the ``simdist-dataset`` console script from a checkout.
 
 The recipe lives in :mod:`simdist.recipes.generate_dataset` (installed with the package, so it runs
-from any directory); this file keeps the repository path working, as a script and as an
-importable module holding the same names.
+from any directory).
 """
 
-from simdist.recipes import generate_dataset as _recipe
+from simdist.recipes import run_from_checkout
 
-if __name__ == "__main__":
-    _recipe.main()
-else:  # imported by path (tests, benchmarks): expose the recipe's names
-    globals().update({k: v for k, v in vars(_recipe).items() if not k.startswith("__")})
+run_from_checkout("generate_dataset", __name__, globals())

@@ -1,13 +1,9 @@
-"""``python recipes/train_expert.py ...`` runs the ``simdist-train-expert`` console script.
+"""``python recipes/train_expert.py ...`` runs the ``simdist-train-expert`` console script from a checkout.
 
 The recipe lives in :mod:`simdist.recipes.train_expert` (installed with the package, so it runs
-from any directory); this file keeps the repository path working, as a script and as an
-importable module holding the same names.
+from any directory).
 """
 
-from simdist.recipes import train_expert as _recipe
+from simdist.recipes import run_from_checkout
 
-if __name__ == "__main__":
-    _recipe.main()
-else:  # imported by path (tests, benchmarks): expose the recipe's names
-    globals().update({k: v for k, v in vars(_recipe).items() if not k.startswith("__")})
+run_from_checkout("train_expert", __name__, globals())

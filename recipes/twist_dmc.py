@@ -1,13 +1,9 @@
-"""``python recipes/twist_dmc.py ...`` runs the ``simdist-twist`` console script.
+"""``python recipes/twist_dmc.py ...`` runs the ``simdist-twist`` console script from a checkout.
 
 The recipe lives in :mod:`simdist.recipes.twist_dmc` (installed with the package, so it runs
-from any directory); this file keeps the repository path working, as a script and as an
-importable module holding the same names.
+from any directory).
 """
 
-from simdist.recipes import twist_dmc as _recipe
+from simdist.recipes import run_from_checkout
 
-if __name__ == "__main__":
-    _recipe.main()
-else:  # imported by path (tests, benchmarks): expose the recipe's names
-    globals().update({k: v for k, v in vars(_recipe).items() if not k.startswith("__")})
+run_from_checkout("twist_dmc", __name__, globals())

@@ -15,3 +15,16 @@
 run the same code; each script's ``--help`` lists its flags with their defaults. The recipes are
 scripts, not API: import them only to reuse a recipe's ``Config``.
 """
+
+import importlib
+
+
+def run_from_checkout(name: str, caller: str, namespace: dict) -> None:
+    """What ``recipes/<name>.py`` in a checkout does: run the recipe when executed as a
+    script (``caller == "__main__"``), else expose its names in ``namespace`` (a module
+    imported by path, e.g. by tests or benchmarks)."""
+    recipe = importlib.import_module(f"{__name__}.{name}")
+    if caller == "__main__":
+        recipe.main()
+    else:
+        namespace.update({k: v for k, v in vars(recipe).items() if not k.startswith("__")})
