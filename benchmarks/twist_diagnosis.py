@@ -9,6 +9,12 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
 - ``pixels``: the recipe's student again, at other update budgets.
 - ``init``: the pixel student with its RSSM (all but the encoder-facing layers whose
   shapes differ) initialised from the teacher's weights.
+- ``warm``: the pixel student with a warm-started encoder: first trained alone, on
+  single images of D, to regress the frozen teacher's *state embedding* of the same step
+  (``--warm-updates`` updates of ``--batch`` images, an MLP head mapping the encoder's
+  output to the teacher's embedding), then that encoder + head feed a student RSSM
+  initialised from the teacher's (same shapes), then the usual Eq. 3 + Eq. 4 updates;
+  prints the return and latent R^2 after the warm start (0 updates) and each budget.
 - ``probe``: the student's CNN trained *supervised* to regress the state from one
   randomised image (5/6 of D's images to train, 1/6 held out); prints R^2 per state
   dimension: can the encoder see what the teacher's latent needs? Options: the encoder
@@ -39,6 +45,10 @@ Usage:
     python benchmarks/twist_diagnosis.py probe --updates 300,600,900 --batch 128 \
         --heldout-renders --norm layer --input-norm image --shift 4
     python benchmarks/twist_diagnosis.py probe ... --train-camera   # H1, camera in training
+    python benchmarks/twist_diagnosis.py probe --updates 600 --batch 128 --heldout-renders \
+        --norm layer --input-norm image --shift 4 --arch keypoints --lr 1e-3
+    python benchmarks/twist_diagnosis.py warm --warm-updates 1200 --updates 0,300 \
+        --arch keypoints --episodes 10
     python benchmarks/twist_diagnosis.py pixels --updates 300 --episodes 10 \
         --train-camera | --standardise-belief --name ARM
 """
@@ -83,6 +93,13 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
         return TwistStudent(teacher, student, recipe.twist_config(cfg, overrides),
                             pixels_key=("next", "state"))
     twist = recipe.new_student(cfg, task, teacher, overrides)
+    if variant == "warm":  # encoder + head -> the teacher's embedding; the teacher's RSSM
+        encoder = twist.student.encoder
+        head = torch.nn.Sequential(torch.nn.Linear(encoder.embed_dim, 256), torch.nn.ELU(),
+                                   torch.nn.Linear(256, teacher.world_model.rssm.embed_dim))
+        twist.student.encoder = torch.nn.Sequential(encoder, head)
+        twist.student.rssm.load_state_dict(teacher.world_model.rssm.state_dict())
+        twist.optim = torch.optim.Adam(twist.student.parameters(), lr=twist.config.lr)
     if variant == "init":
         own = twist.student.rssm.state_dict()
         same = {k: v for k, v in teacher.world_model.rssm.state_dict().items()
@@ -119,10 +136,13 @@ def distil(args, cfg, teacher_result: dict) -> None:
     torch.set_rng_state(generator_state)
     stage = args.work / (f"{args.variant}_lr{args.lr}" if args.name == "base"
                          else f"{args.variant}_{args.name}")
+    if args.variant == "warm" and not (stage / "student.pt").exists():
+        warm_start(args, twist, recorded)
     for updates in args.updates:  # cumulative: resumes from the previous budget
         start = time.perf_counter()
         history = train_resumable(twist.update, replay.sample, updates, {"twist": twist},
-                                  stage / "student.pt", every=100, desc=args.variant)
+                                  stage / "student.pt", every=100,
+                                  desc=args.variant) if updates else []
         seconds = time.perf_counter() - start
         if args.variant == "state":
             policy = DreamerPolicy(twist.student, teacher.actor, "state", explore=False)
@@ -138,8 +158,34 @@ def distil(args, cfg, teacher_result: dict) -> None:
             extra = latent_r2(twist, probe_batch)
         print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
                           "lr": args.lr, "mean": result["mean"], "std": result["std"], **extra,
-                          "train_s": round(seconds, 1), "last": mean_metrics(history, 50)}),
+                          "train_s": round(seconds, 1),
+                          "last": mean_metrics(history, 50) if history else None}),
               flush=True)
+
+
+def warm_start(args, twist: TwistStudent, episodes: list) -> None:
+    """Trains the student's encoder (+ head) alone to map one image of D to the frozen
+    teacher's embedding of the same step's state (standardised per dimension), with the
+    student's augmentation applied per image; the RSSM is not touched."""
+    pixels = torch.cat([e["next", "pixels"] for e in episodes])
+    with torch.no_grad():
+        target = twist.teacher.world_model.encoder(torch.cat([e["next", "state"]
+                                                              for e in episodes]))
+    scale = target.std(0).clamp_min(1e-3)
+    encoder = twist.student.encoder
+    optim = torch.optim.Adam(encoder.parameters(), lr=1e-3)  # the probe's best (README)
+    shift = RandomShift(twist.config.shift_pad, "frame")
+    start = time.perf_counter()
+    for step in range(1, args.warm_updates + 1):
+        index = torch.randint(len(pixels), (args.batch,))
+        loss = ((encoder(shift(pixels[index])) - target[index]) / scale).pow(2).mean()
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+        if step % 300 == 0 or step == args.warm_updates:
+            print(json.dumps({"variant": "warm", "warm_updates": step,
+                              "loss": round(loss.item(), 3),
+                              "seconds": round(time.perf_counter() - start, 1)}), flush=True)
 
 
 def latent_r2(twist: TwistStudent, batch) -> dict:
@@ -199,7 +245,9 @@ def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, 
 def probe_encoder(args, cfg) -> torch.nn.Module:
     size = DreamerWorldModel.student(1, cfg.model_size).encoder
     depth = args.depth or size.net[0].out_channels
-    return PixelEncoder(depth, norm=args.norm, input_norm=args.input_norm)
+    keypoints = max(1, recipe.RSSM_SIZES[cfg.model_size]["embed"] // 2)
+    return PixelEncoder(depth, norm=args.norm, input_norm=args.input_norm, arch=args.arch,
+                        keypoints=keypoints)
 
 
 def probe(args, cfg, teacher_result: dict) -> None:
@@ -241,6 +289,9 @@ def probe(args, cfg, teacher_result: dict) -> None:
         shift = torch.nn.Sequential(RandomShift(args.shift, "frame"),
                                     RandomRotate(args.rotate, "frame"))
     head = torch.nn.Linear(encoder.embed_dim, states.shape[-1])
+    if args.arch == "keypoints":  # coordinates -> state is not linear (angles of offsets)
+        head = torch.nn.Sequential(torch.nn.Linear(encoder.embed_dim, 256), torch.nn.ELU(),
+                                   torch.nn.Linear(256, states.shape[-1]))
     params = [*encoder.parameters(), *head.parameters()]
     optim = torch.optim.Adam(params, lr=args.lr or 3e-4)
     mean, std = states[train].mean(0), states[train].std(0)
@@ -279,7 +330,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("variant", choices=["state", "pixels", "init", "probe"])
+    parser.add_argument("variant", choices=["state", "pixels", "init", "warm", "probe"])
     parser.add_argument("--outputs", type=Path, default=Path("outputs/twist_dmc"))
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS))
     parser.add_argument("--task", default="cartpole-balance")
@@ -305,6 +356,10 @@ def main():
                              "train_camera randomisation (camera-pose draw per image)")
     parser.add_argument("--standardise-belief", action="store_true",
                         help="pixels: TwistConfig.standardise_belief")
+    parser.add_argument("--arch", default="dreamer", choices=["dreamer", "keypoints"],
+                        help="probe/pixels/warm: the encoder (PixelEncoder.arch)")
+    parser.add_argument("--warm-updates", type=int, default=1200,
+                        help="warm: encoder-only updates before distillation")
     parser.add_argument("--name", default="base",
                         help="a label for the log (pixels: also the checkpoint folder)")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))
@@ -312,6 +367,7 @@ def main():
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS[args.preset])
+    cfg = dataclasses.replace(cfg, student_arch=args.arch)
     teacher_result = teacher_stage(args.outputs, args.task, args.seed)
     (probe if args.variant == "probe" else distil)(args, cfg, teacher_result)
 

@@ -212,3 +212,15 @@ def test_bad_files_fail_naming_the_file(tmp_path, damage, message):
         SimDistAgent.load(path)
     assert str(path) in str(err.value)
     assert "weights_only=False" not in str(err.value)
+
+
+def test_a_keypoint_student_round_trips_through_its_self_describing_file(tmp_path):
+    teacher = DreamerAgent.for_state(5, 2, DreamerConfig(size="tiny"))
+    student = DreamerWorldModel.student(2, size="tiny", norm="layer", input_norm="image",
+                                        arch="keypoints")
+    twist = TwistStudent(teacher, student, TwistConfig(horizon=2))
+    loaded = TwistStudent.load(twist.save(tmp_path / "kp.pt"))
+    enc = loaded.student.encoder
+    assert (enc.arch, enc.keypoints, enc.embed_dim) == ("keypoints", 16, 32)
+    for a, b in zip(student.parameters(), loaded.student.parameters()):
+        assert torch.equal(a, b)

@@ -80,3 +80,41 @@ def test_pixel_encoder_options_layer_norm_and_per_image_input_norm():
         PixelEncoder(depth=4, norm="batch")
     with pytest.raises(ValueError, match="input_norm"):
         PixelEncoder(depth=4, input_norm="dataset")
+
+
+def test_spatial_softmax_returns_the_coordinates_of_each_channel_peak():
+    from simdist.modules.encoders import SpatialSoftmax
+    maps = torch.full((2, 3, 5, 9), -1e4)
+    peaks = [(0, 0), (4, 8), (2, 6)]  # (row, column) per channel
+    for c, (row, col) in enumerate(peaks):
+        maps[:, c, row, col] = 0.0
+    out = SpatialSoftmax()(maps)
+    xs = [-1 + 2 * col / 8 for _, col in peaks]
+    ys = [-1 + 2 * row / 4 for row, _ in peaks]
+    torch.testing.assert_close(out, torch.tensor([xs + ys] * 2))
+    # flat maps: every channel at the centre of the image
+    torch.testing.assert_close(SpatialSoftmax()(torch.zeros(1, 2, 4, 4)), torch.zeros(1, 4))
+
+
+def test_keypoint_encoder_follows_a_moving_object_and_keeps_the_pixel_contract():
+    torch.manual_seed(0)
+    enc = PixelEncoder(depth=4, norm="layer", input_norm="image", arch="keypoints", keypoints=6)
+    assert enc.embed_dim == 12
+    x = torch.randint(0, 255, (2, 3, 64, 64, 3), dtype=torch.uint8)
+    out = enc(x)
+    assert out.shape == (2, 3, 12) and out.abs().max() <= 1.0
+    # gradients reach the first convolution (the encoder is trainable end to end)
+    out.sum().backward()
+    assert enc.net[0].weight.grad.abs().sum() > 0
+    # keypoints are coordinates: shifting the whole image right moves their mean x right
+    # (the first-layer filters see the same content, one map cell further)
+    with torch.no_grad():
+        blob = torch.zeros(1, 64, 64, 3, dtype=torch.uint8)
+        blob[0, 28:36, 8:16] = 255
+        moved = torch.roll(blob, 40, dims=2)
+        left, right = enc(blob)[0, :6].mean(), enc(moved)[0, :6].mean()
+    assert right > left
+    with pytest.raises(ValueError, match="arch"):
+        PixelEncoder(depth=4, arch="resnet")
+    with pytest.raises(ValueError, match="keypoints"):
+        PixelEncoder(depth=4, arch="keypoints", keypoints=0)

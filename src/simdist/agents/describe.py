@@ -75,9 +75,13 @@ def _describe_encoder(encoder: nn.Module) -> dict:
                 "embed_dim": int(encoder.embed_dim), "hidden": int(linears[0].out_features),
                 "layers": len(linears)}
     if isinstance(encoder, PixelEncoder):
-        return {"kind": "pixels", "depth": int(encoder.net[0].out_channels),
+        desc = {"kind": "pixels", "depth": int(encoder.net[0].out_channels),
                 "norm": encoder.norm, "input_norm": encoder.input_norm,
                 "image_size": int(encoder.image_size)}
+        if encoder.arch != "dreamer":  # older files, written before arch, stay readable
+            desc.update(arch=encoder.arch, keypoints=int(encoder.keypoints),
+                        depth=int(encoder.net[0].out_channels) // 2)
+        return desc
     raise TypeError(f"the checkpoint format describes StateEncoder and PixelEncoder, got "
                     f"{type(encoder).__name__}")
 
@@ -86,7 +90,8 @@ def _build_encoder(desc: dict) -> nn.Module:
     if desc["kind"] == "state":
         return StateEncoder(desc["state_dim"], desc["embed_dim"], desc["hidden"], desc["layers"])
     if desc["kind"] == "pixels":
-        return PixelEncoder(desc["depth"], desc["image_size"], desc["norm"], desc["input_norm"])
+        return PixelEncoder(desc["depth"], desc["image_size"], desc["norm"], desc["input_norm"],
+                            desc.get("arch", "dreamer"), desc.get("keypoints", 32))
     raise ValueError(f"unknown encoder kind {desc['kind']!r}")
 
 

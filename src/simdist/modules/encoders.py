@@ -42,10 +42,21 @@ class StateEncoder(nn.Module):
 
 
 class PixelEncoder(nn.Module):
-    """Dreamer's convolutional encoder for 64x64 RGB (uint8, channels last).
+    """Convolutional encoder for 64x64 RGB (uint8, channels last).
 
-    Four 4x4 stride-2 convolutions with ``depth * (1, 2, 4, 8)`` channels, as in
-    DreamerV2; output is the flattened ``8 * depth * 2 * 2`` feature vector.
+    ``arch="dreamer"`` (default): four 4x4 stride-2 convolutions with
+    ``depth * (1, 2, 4, 8)`` channels, as in DreamerV2; output is the flattened
+    ``8 * depth * 2 * 2`` feature vector.
+
+    ``arch="keypoints"``: a spatial-softmax encoder (deep spatial autoencoders, Finn et
+    al. 2016): 3x3 convolutions of ``2 * depth`` channels with strides 2, 2, 1, then one
+    of ``keypoints`` channels, all on a 16x16 map; each channel's softmax over the map
+    gives the expected image coordinates of one learned feature, so the output is
+    ``2 * keypoints`` coordinates in ``[-1, 1]``. It is built for reading *where* things
+    are (a thin pole's tip relative to its cart), which a flatten-then-linear head has to
+    learn position by position. Measured with the TWIST probe (benchmarks/README.md):
+    held-out R^2 of cart position / pole tilt 0.78 / 0.38 after 600 updates against
+    0.48 / 0.02 for the Dreamer CNN, at ~1.6x its compute per image.
 
     Args:
         depth: channels of the first convolution (DreamerV2: 48; ``"compact"``: 16).
@@ -55,6 +66,8 @@ class PixelEncoder(nn.Module):
         input_norm: ``"fixed"`` maps uint8 to ``[-0.5, 0.5]``; ``"image"`` standardises
             each image per channel (zero mean, unit std over its pixels), which removes
             a global colour or brightness shift before the first convolution.
+        arch: ``"dreamer"`` or ``"keypoints"``.
+        keypoints: number of spatial-softmax keypoints (``arch="keypoints"`` only).
 
     Examples:
         >>> enc = PixelEncoder(depth=8)
@@ -63,13 +76,17 @@ class PixelEncoder(nn.Module):
         >>> PixelEncoder(depth=8, norm="layer", input_norm="image")(
         ...     torch.zeros(2, 5, 64, 64, 3, dtype=torch.uint8)).shape
         torch.Size([2, 5, 256])
+        >>> PixelEncoder(depth=8, arch="keypoints", keypoints=16)(
+        ...     torch.zeros(3, 64, 64, 3, dtype=torch.uint8)).shape
+        torch.Size([3, 32])
     """
 
     NORMS = (None, "layer")
     INPUT_NORMS = ("fixed", "image")
+    ARCHS = ("dreamer", "keypoints")
 
     def __init__(self, depth: int = 32, image_size: int = 64, norm: str | None = None,
-                 input_norm: str = "fixed"):
+                 input_norm: str = "fixed", arch: str = "dreamer", keypoints: int = 32):
         super().__init__()
         if image_size != 64:
             raise ValueError(f"PixelEncoder expects 64x64 images, got image_size={image_size}")
@@ -77,9 +94,15 @@ class PixelEncoder(nn.Module):
             raise ValueError(f"norm must be one of {self.NORMS}, got {norm!r}")
         if input_norm not in self.INPUT_NORMS:
             raise ValueError(f"input_norm must be one of {self.INPUT_NORMS}, got {input_norm!r}")
-        if depth < 1:
-            raise ValueError(f"depth must be >= 1, got {depth}")
+        if arch not in self.ARCHS:
+            raise ValueError(f"arch must be one of {self.ARCHS}, got {arch!r}")
+        if depth < 1 or keypoints < 1:
+            raise ValueError(f"depth and keypoints must be >= 1, got {depth}, {keypoints}")
         self.image_size, self.norm, self.input_norm = image_size, norm, input_norm
+        self.arch, self.keypoints = arch, keypoints
+        if arch == "keypoints":
+            self.net, self.embed_dim = _keypoint_net(depth, norm, keypoints), 2 * keypoints
+            return
         layers, channels = [], 3
         for i in range(4):
             layers.append(nn.Conv2d(channels, depth * 2**i, 4, stride=2, bias=norm is None))
@@ -99,6 +122,40 @@ class PixelEncoder(nn.Module):
             std, mean = torch.std_mean(x, dim=(2, 3), keepdim=True)
             x = (x - mean) / (std + 1e-2)
         return self.net(x).reshape(*lead, self.embed_dim)
+
+
+def _keypoint_net(depth: int, norm: str | None, keypoints: int) -> nn.Sequential:
+    layers, channels = [], 3
+    for stride in (2, 2, 1):  # 64 -> 32 -> 16 -> 16
+        layers.append(nn.Conv2d(channels, 2 * depth, 3, stride=stride, padding=1,
+                                bias=norm is None))
+        if norm == "layer":
+            layers.append(ChannelLayerNorm(2 * depth))
+        layers.append(nn.ELU())
+        channels = 2 * depth
+    layers += [nn.Conv2d(channels, keypoints, 3, padding=1), SpatialSoftmax()]
+    return nn.Sequential(*layers)
+
+
+class SpatialSoftmax(nn.Module):
+    """``[N, C, H, W]`` maps -> ``[N, 2C]`` expected coordinates ``(x_1..x_C, y_1..y_C)``.
+
+    Each channel's softmax over its ``H x W`` positions weighs a grid spanning
+    ``[-1, 1]`` in both directions (left/top = -1), so a channel that is large at one
+    position returns that position's coordinates.
+
+    Examples:
+        >>> maps = torch.full((1, 1, 3, 5), -1e4); maps[0, 0, 2, 1] = 0.0  # row 2, column 1
+        >>> SpatialSoftmax()(maps)  # x of column 1 of 5, y of row 2 of 3
+        tensor([[-0.5000,  1.0000]])
+    """
+
+    def forward(self, maps: torch.Tensor) -> torch.Tensor:
+        N, C, H, W = maps.shape
+        weights = maps.flatten(2).softmax(-1).view(N, C, H, W)
+        xs = torch.linspace(-1.0, 1.0, W, device=maps.device, dtype=maps.dtype)
+        ys = torch.linspace(-1.0, 1.0, H, device=maps.device, dtype=maps.dtype)
+        return torch.cat([(weights.sum(2) * xs).sum(-1), (weights.sum(3) * ys).sum(-1)], -1)
 
 
 class ChannelLayerNorm(nn.LayerNorm):

@@ -76,14 +76,17 @@ class DreamerWorldModel(nn.Module):
 
     @classmethod
     def student(cls, action_dim: int, size: str = "small", depth: int | None = None,
-                norm: str | None = None, input_norm: str = "fixed") -> DreamerWorldModel:
+                norm: str | None = None, input_norm: str = "fixed",
+                arch: str = "dreamer") -> DreamerWorldModel:
         """Pixel-based TWIST student: CNN encoder, the same RSSM class, no heads.
 
-        ``depth`` (default: the size's), ``norm`` and ``input_norm`` configure the
-        :class:`PixelEncoder`; the RSSM sizes always follow ``size`` (the teacher's).
+        ``depth`` (default: the size's), ``norm``, ``input_norm`` and ``arch`` configure
+        the :class:`PixelEncoder` (``arch="keypoints"``: ``embed // 2`` spatial-softmax
+        keypoints); the RSSM sizes always follow ``size`` (the teacher's).
         """
         s = _size(size)
-        encoder = PixelEncoder(depth=depth or s["depth"], norm=norm, input_norm=input_norm)
+        encoder = PixelEncoder(depth=depth or s["depth"], norm=norm, input_norm=input_norm,
+                               arch=arch, keypoints=max(1, s["embed"] // 2))
         rssm = RSSM(encoder.embed_dim, action_dim, s["deter_dim"], s["stoch"], s["classes"],
                     s["hidden_dim"])
         return cls(encoder, rssm)
