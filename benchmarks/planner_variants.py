@@ -85,7 +85,8 @@ def main(argv=None):
         for domain in args.domains:
             start = time.perf_counter()
             env = locomotion_env(get_target(domain), cfg.episodes, cfg.episode_steps,
-                                 cfg.seed + 10_000, primers=[agent.make_primer()], task=cfg.task)
+                                 cfg.seed + 10_000, task=cfg.task,
+                                 primers=[agent.make_primer(planner.latency_compensation)])
             spec = env.action_spec
             policy = agent.policy(spec.space.low[0], spec.space.high[0], planner, seed=cfg.seed)
             if overrides is None:

@@ -2,6 +2,7 @@
 
 import copy
 
+import pytest
 import torch
 from torchrl.envs import InitTracker, TransformedEnv
 
@@ -62,3 +63,39 @@ def test_pretraining_updates_reduce_the_loss():
     for _ in range(100):
         last = agent.pretrain_update(batch.clone())
     assert last["loss_reward"] < first["loss_reward"] / 2
+
+
+def test_latency_compensation_plans_from_the_latent_rolled_through_actions_in_flight():
+    agent = _agent()
+    planner = PlannerConfig(horizon=3, num_samples=16, num_elites=4, iterations=1,
+                            latency_compensation=2)
+    env = TransformedEnv(make_env("quadruped-flat", seed=0, max_episode_steps=5, num_envs=2),
+                         InitTracker())
+    env.append_transform(agent.make_primer(latency_compensation=2))
+    spec = env.action_spec
+    policy = agent.policy(spec.space.low[0], spec.space.high[0], planner)
+    seen = []  # the latent each planning call starts from
+    policy.planner.register_forward_pre_hook(lambda m, args: seen.append(args[0]["latent"]))
+    td = env.rollout(8, policy, break_when_any_done=False)
+    sent = td["next", "simdist", "pending_actions"]            # [2, 8, 2, A]
+    # the newest pending action is the one just chosen; the line shifts by one per step
+    torch.testing.assert_close(sent[:, :, -1], td["action"])
+    torch.testing.assert_close(sent[:, 1:5, 0], td["action"][:, :4])
+    # a new episode (step 5) starts with nothing in flight: zeros, then its first action
+    assert td["is_init"][:, 5].all()
+    assert (sent[:, 5, 0] == 0).all()
+    # the plan at step 6 starts two model steps ahead of z_6, through the actions in
+    # flight then: (0, a_5), the episode having started at step 5
+    with torch.no_grad():
+        z6 = td["planner", "latent"][:, 6]
+        expected = agent.world_model.rollout(
+            z6, torch.stack([torch.zeros_like(td["action"][:, 5]), td["action"][:, 5]], 1))
+    torch.testing.assert_close(seen[6], expected[:, -1])
+    # without the primer key the policy refuses instead of planning from zeros
+    bare = TransformedEnv(make_env("quadruped-flat", seed=0, max_episode_steps=5, num_envs=2),
+                          InitTracker())
+    bare.append_transform(agent.make_primer(latency_compensation=0))
+    with pytest.raises(KeyError, match="make_primer"):
+        bare.rollout(2, policy)
+    with pytest.raises(ValueError, match="latency_compensation"):
+        PlannerConfig(latency_compensation=-1)

@@ -58,6 +58,10 @@ class SimDistConfig:
     value_weight: float = 1.0
 
 
+# the actions a latency-compensating policy has sent that the robot may not apply yet
+PENDING = ("simdist", "pending_actions")
+
+
 class SimDistPolicy(TensorDictModuleBase):
     """Observation history -> latent -> latent MPPI plan -> action.
 
@@ -72,12 +76,28 @@ class SimDistPolicy(TensorDictModuleBase):
     """
 
     def __init__(self, world_model: SimDistWorldModel, planner: LatentMPPIPlanner,
-                 obs_key="observation"):
+                 obs_key="observation", latency_compensation: int = 0):
         super().__init__()
         self.world_model, self.planner, self.obs_key = world_model, planner, obs_key
+        self.latency_compensation = int(latency_compensation)
         self.in_keys = [obs_key, "is_init", ("simdist", "history")]
         self.out_keys = ["action", ("next", "simdist", "history"), ("planner", "latent"),
                          ("planner", "mean"), ("planner", "rewards"), ("planner", "value")]
+        if self.latency_compensation:
+            self.in_keys.append(PENDING)
+            self.out_keys.append(("next", *PENDING))
+
+    def _in_flight(self, td, latent, is_init, batch, device) -> tuple[torch.Tensor, torch.Tensor]:
+        """The latent rolled through the actions still in flight, and those actions."""
+        k, action_dim = self.latency_compensation, self.world_model.action_dim
+        pending = td.get(PENDING, None)
+        if pending is None:
+            raise KeyError(f"latency_compensation={k} needs {PENDING} in the env: build it "
+                           f"with SimDistAgent.make_primer(latency_compensation={k})")
+        pending = pending.to(device).reshape(-1, k, action_dim)
+        # an episode starts with nothing in flight (the simulator's delay line holds zeros)
+        pending = torch.where(is_init.reshape(-1, 1, 1), torch.zeros_like(pending), pending)
+        return self.world_model.rollout(latent, pending)[..., -1, :], pending
 
     @torch.no_grad()
     def forward(self, td: TensorDictBase) -> TensorDictBase:
@@ -98,8 +118,14 @@ class SimDistPolicy(TensorDictModuleBase):
         shifted = torch.cat([history[..., 1:, :], obs.unsqueeze(-2)], -2)
         history = torch.where(is_init, obs.unsqueeze(-2).expand_as(shifted), shifted)
         latent = self.world_model.encode(history).reshape(-1, self.world_model.latent_dim)
-        plan = self.planner(TensorDict({"latent": latent,
+        start = latent
+        if self.latency_compensation:
+            start, pending = self._in_flight(td, latent, is_init, batch, device)
+        plan = self.planner(TensorDict({"latent": start,
                                         "is_init": is_init.reshape(-1, 1)}, [latent.shape[0]]))
+        if self.latency_compensation:
+            sent = torch.cat([pending[:, 1:], plan["action"][:, None]], 1)
+            td.set(("next", *PENDING), sent.reshape(*batch, *sent.shape[1:]).to(home))
         td.set("action", plan["action"].reshape(*batch, -1).to(home))
         td.set(("next", "simdist", "history"), history.to(home))
         td.set(("planner", "latent"), latent.reshape(*batch, -1).to(home))
@@ -211,7 +237,8 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         planner = LatentMPPIPlanner.from_world_model(
             self.world_model, config, seed=seed, compile=compile,
             action_bounds=None if action_low is None else (action_low, action_high))
-        return SimDistPolicy(self.world_model, planner).to(self.device)
+        return SimDistPolicy(self.world_model, planner,
+                             latency_compensation=config.latency_compensation).to(self.device)
 
     # -- self-describing checkpoints --------------------------------------------------
     def describe(self) -> dict:
@@ -262,8 +289,15 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         agent.checkpoint_meta = dict(ckpt.get("meta", {}))
         return agent.to(map_location) if map_location is not None else agent
 
-    def make_primer(self) -> TensorDictPrimer:
+    def make_primer(self, latency_compensation: int | None = None) -> TensorDictPrimer:
+        """The env transform that carries the policy's state between steps: the
+        observation history and, with ``latency_compensation=k`` (default: the planner
+        config's), the last ``k`` actions sent."""
         enc = self.world_model.encoder
-        return TensorDictPrimer(Composite({"simdist": Composite({
-            "history": Unbounded((enc.history, enc.obs_dim))})}), default_value=0.0,
-            expand_specs=True)
+        if latency_compensation is None:
+            latency_compensation = (self.planner_config or PlannerConfig()).latency_compensation
+        specs = {"history": Unbounded((enc.history, enc.obs_dim))}
+        if latency_compensation:
+            specs[PENDING[-1]] = Unbounded((latency_compensation, self.world_model.action_dim))
+        return TensorDictPrimer(Composite({"simdist": Composite(specs)}), default_value=0.0,
+                                expand_specs=True)

@@ -52,15 +52,22 @@ class PlannerConfig:
     action_low: float = -1.0
     action_high: float = 1.0
     warm_start: bool = True
+    # Control steps of action delay the policy compensates (SimDist reference: 1): before
+    # planning, the latent is rolled forward through the last k actions already sent to
+    # the robot, so the plan starts where its first action will be applied. Used by
+    # SimDistPolicy; the env needs SimDistAgent.make_primer(latency_compensation=k).
+    latency_compensation: int = 0
 
     def __post_init__(self):
-        for name in ("horizon", "num_samples", "iterations", "num_elites"):
+        for name in ("horizon", "num_samples", "iterations", "num_elites",
+                     "latency_compensation"):
             value = getattr(self, name)
             # bool is an int, and 2.5 would be truncated silently by the tensor shapes.
             if isinstance(value, bool) or not isinstance(value, numbers.Integral):
                 raise ValueError(f"{name} must be an integer, got {value!r}")
-            if value < 1:
-                raise ValueError(f"{name} must be >= 1, got {value}")
+            if value < (0 if name == "latency_compensation" else 1):
+                raise ValueError(f"{name} must be >= "
+                                 f"{0 if name == 'latency_compensation' else 1}, got {value}")
         for name in ("temperature", "gamma", "init_std", "min_std", "max_std",
                      "policy_fraction", "policy_noise", "action_low", "action_high"):
             value = getattr(self, name)
