@@ -163,3 +163,29 @@ def test_float_pixels_outside_the_models_units_are_refused(scale):
     td["next", "pixels"] = images.long()
     with pytest.raises(TypeError, match="must be uint8 images"):
         loss(td)
+
+
+def test_state_recon_reconstructs_the_privileged_state_from_pixels():
+    from tensordict import TensorDict
+    torch.manual_seed(0)
+    wm = DreamerWorldModel.pixel_state_recon(action_dim=1, state_dim=5, size="tiny")
+    td = TensorDict({"action": torch.zeros(2, 3, 1),
+                     "is_init": torch.zeros(2, 3, 1, dtype=torch.bool),
+                     "next": {"pixels": torch.randint(0, 255, (2, 3, 64, 64, 3),
+                                                      dtype=torch.uint8),
+                              "state": torch.randn(2, 3, 5),
+                              "reward": torch.zeros(2, 3, 1)}}, [2, 3])
+    loss = DreamerWorldModelLoss(wm)
+    loss.set_keys(observation=("next", "pixels"), reconstruction=("next", "state"))
+    torch.manual_seed(1)
+    posterior = td.clone()
+    out = loss(posterior)  # also writes the (detached) posterior states it decoded
+    # by hand: the decoder of those posterior features against the state, 0.5 * sum, mean
+    features = torch.cat([posterior["posterior", "belief"], posterior["posterior", "stoch"]], -1)
+    expected = 0.5 * (wm.decode(features) - td["next", "state"]).pow(2).sum(-1).mean()
+    torch.testing.assert_close(out["loss_reconstruction"], expected)
+    # a decoder of the image cannot be trained against a state: refused, not broadcast
+    pixel = DreamerWorldModelLoss(DreamerWorldModel.pixel_dreamer(action_dim=1, size="tiny"))
+    pixel.set_keys(observation=("next", "pixels"), reconstruction=("next", "state"))
+    with pytest.raises(ValueError, match="reconstruction target"):
+        pixel(td.clone())

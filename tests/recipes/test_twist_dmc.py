@@ -12,7 +12,8 @@ from simdist.viz import entity_paths
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = [sys.executable, str(ROOT / "recipes" / "twist_dmc.py")]
 METHODS = ["Oracle (state teacher)", "TWIST (student)", "TWIST w/o imagined alignment",
-           "TWIST w/o action noise", "Dreamer from pixels + DR", "Dreamer from pixels, no DR"]
+           "TWIST w/o action noise", "Dreamer from pixels + DR", "Dreamer from pixels, no DR",
+           "Dreamer State Recon. + DR"]
 
 
 def _run(*args, timeout=300):
@@ -56,13 +57,18 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert (scalars / "cartpole-balance_s0_twist" / "loss_distill.csv").exists() or \
         list((scalars / "cartpole-balance_s0_twist").glob("*.csv"))
     assert list((scalars / "cartpole-balance_s0_dreamer_dr").glob("*.csv"))
+    # the State Recon. baseline stored the state of each step and learned to decode it
+    recon = tmp_path / "stages" / "cartpole-balance_s0_dreamer_state_recon"
+    assert (recon / "episodes" / "00000" / "next" / "state.memmap").exists()
+    recon_agent = torch.load(recon / "dreamer_agent.pt", weights_only=True)
+    assert recon_agent["config"]["reconstruct_key"] == "state"
     assert (tmp_path / "training_curves.png").stat().st_size > 0
     # stages ran in two processes (the teacher chain beside the pixel Dreamers)
     assert results["jobs"] == 2 and "wall time this run" in proc.stdout
 
     again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1)  # in-process
     assert again.returncode == 0, again.stderr
-    assert again.stdout.count("already done") == 8  # 7 stages per task-seed + recording
+    assert again.stdout.count("already done") == 9  # 8 stages per task-seed + recording
     changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
     assert changed.returncode != 0 and "different config" in changed.stderr
 

@@ -128,13 +128,16 @@ class DreamerAgent(ckpt_format.LoadableAgent):
     """
 
     def __init__(self, world_model: DreamerWorldModel, action_dim: int, config: DreamerConfig,
-                 obs_key="state"):
+                 obs_key="state", reconstruct_key: str | None = None):
         self.world_model, self.config = world_model, config
         feature_dim, hidden = world_model.rssm.feature_dim, world_model.rssm.input_net[0].out_features
         self.actor = Actor(feature_dim, action_dim, hidden=hidden, layers=3)
         self.critic = ScalarHead(feature_dim, hidden)
         self.model_loss = DreamerWorldModelLoss(world_model)
         self.model_loss.set_keys(observation=("next", obs_key))
+        self.reconstruct_key = reconstruct_key  # None: the decoder reconstructs obs_key
+        if reconstruct_key is not None:
+            self.model_loss.set_keys(reconstruction=("next", reconstruct_key))
         self.behaviour_loss = DreamerActorCriticLoss(
             world_model, self.actor, self.critic, horizon=config.horizon,
             entropy_coeff=config.entropy_coeff, max_starts=config.imagination_starts)
@@ -155,6 +158,14 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         """Dreamer from ``"pixels"`` (the TWIST paper's pixel baselines)."""
         return cls(DreamerWorldModel.pixel_dreamer(action_dim, config.size), action_dim,
                    config, obs_key="pixels")
+
+    @classmethod
+    def for_pixels_state_recon(cls, action_dim: int, state_dim: int,
+                               config: DreamerConfig = DreamerConfig()):
+        """Dreamer State Recon. (TWIST baseline): acts from ``"pixels"``, its decoder
+        reconstructs the privileged ``"state"`` of each step instead of the image."""
+        return cls(DreamerWorldModel.pixel_state_recon(action_dim, state_dim, config.size),
+                   action_dim, config, obs_key="pixels", reconstruct_key="state")
 
     def policy(self, explore: bool = True, action_spec=None) -> DreamerPolicy:
         """The recurrent acting policy (reads ``self.obs_key``; needs ``make_primer()``).
@@ -203,8 +214,11 @@ class DreamerAgent(ckpt_format.LoadableAgent):
     # -- self-describing checkpoints --------------------------------------------------
     def describe(self) -> dict:
         """What rebuilds this agent untrained: config fields, world-model parts, obs key."""
-        return {"agent": dataclasses.asdict(self.config),
-                "world_model": describe_dreamer_model(self.world_model), "obs_key": self.obs_key}
+        out = {"agent": dataclasses.asdict(self.config),
+               "world_model": describe_dreamer_model(self.world_model), "obs_key": self.obs_key}
+        if self.reconstruct_key is not None:  # older files, without it, stay readable
+            out["reconstruct_key"] = self.reconstruct_key
+        return out
 
     def weights(self) -> dict:
         """Every network's state dict (target critic included), no optimiser state."""
@@ -242,7 +256,8 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         agent_config = ckpt_format.config_from_dict(
             DreamerConfig, ckpt_format.part(config, path, "agent"), path, "DreamerConfig")
         obs_key = ckpt_format.part(config, path, "obs_key")
-        return cls(wm, wm.rssm.action_dim, agent_config, obs_key=obs_key)
+        return cls(wm, wm.rssm.action_dim, agent_config, obs_key=obs_key,
+                   reconstruct_key=config.get("reconstruct_key"))
 
     def load_weights(self, weights: dict, path="<checkpoint>") -> None:
         """Loads :meth:`weights`' dict (strict; errors name ``path`` and the part)."""

@@ -100,6 +100,17 @@ class DreamerWorldModel(nn.Module):
         model.reward_head = ScalarHead(model.rssm.feature_dim, s["head"])
         return model
 
+    @classmethod
+    def pixel_state_recon(cls, action_dim: int, state_dim: int,
+                          size: str = "small") -> DreamerWorldModel:
+        """Dreamer State Recon. (TWIST baseline): CNN encoder, a decoder of the
+        privileged *state* instead of the image, reward head."""
+        s = _size(size)
+        model = cls.student(action_dim, size)
+        model.decoder = StateDecoder(model.rssm.feature_dim, state_dim, s["head"])
+        model.reward_head = ScalarHead(model.rssm.feature_dim, s["head"])
+        return model
+
     # -- verbs ----------------------------------------------------------------------------
     def observe(self, next_obs: torch.Tensor, action: torch.Tensor, is_init: torch.Tensor,
                 state: RSSMState | None = None, noise: torch.Tensor | None = None) -> dict:

@@ -43,6 +43,10 @@ class DreamerWorldModelLoss(SimdistLoss):
     states are written back into the input TensorDict (detached) under
     ``("posterior", "belief")`` / ``("posterior", "stoch")`` for the actor-critic loss.
 
+    The decoder reconstructs the observation, or with ``set_keys(reconstruction=key)``
+    another vector of the same steps (TWIST's "Dreamer State Recon." baseline: images in,
+    the privileged state out).
+
     Examples:
         >>> wm = DreamerWorldModel.teacher(state_dim=3, action_dim=1, size="tiny")
         >>> td = TensorDict({"action": torch.zeros(2, 4, 1),
@@ -60,6 +64,7 @@ class DreamerWorldModelLoss(SimdistLoss):
         reward: NestedKey = ("next", "reward")
         terminated: NestedKey = ("next", "terminated")
         is_init: NestedKey = "is_init"
+        reconstruction: NestedKey | None = None  # None: the observation
 
     default_keys = _AcceptedKeys
 
@@ -89,7 +94,13 @@ class DreamerWorldModelLoss(SimdistLoss):
                                        self.read_flag(td, "is_init", (B, T)))
         features = DreamerWorldModel.features(out)
         prediction = self.world_model.decode(features)
+        if self.tensor_keys.reconstruction is not None:
+            obs = self.read(td, "reconstruction")
         target = pixels_to_target(obs) if obs.dtype == torch.uint8 else obs
+        if prediction.shape != target.shape:
+            raise ValueError(f"{type(self).__name__}: the decoder predicts "
+                             f"{tuple(prediction.shape)} but the reconstruction target is "
+                             f"{tuple(target.shape)}")
         event_dims = tuple(range(2, target.dim()))
         recon = 0.5 * (prediction - target).pow(2).sum(event_dims).mean()
         reward_t = self.read_scalar(td, "reward", (B, T))

@@ -13,6 +13,8 @@ finished stages and a killed stage resumes from its last checkpoint):
 4. ``dreamer_dr`` / ``dreamer_no_dr``: Dreamer from pixels, with and without visual DR,
    with the same environment-step budget as the teacher (at the CPU default with fewer
    updates: a pixel update costs ~4x a state update; ``paper`` gives all the same ratio).
+   ``dreamer_state_recon``: TWIST's "Dreamer State Recon." baseline, a pixel Dreamer with
+   DR whose decoder reconstructs the privileged state instead of the image (same budget).
 
 Every method is evaluated on **held-out** textures (train colours, camera jitter; drawn
 once per episode), on the same seeds.
@@ -58,7 +60,11 @@ STUDENTS = {"twist": (TWIST, {}),
             "no_noise": ("TWIST w/o action noise", {"action_noise_std": 0.0})}
 # stage suffix -> (table name, visual randomisation while training)
 PIXEL_DREAMERS = {"dreamer_dr": ("Dreamer from pixels + DR", VisualRandomisation.training()),
-                  "dreamer_no_dr": ("Dreamer from pixels, no DR", None)}
+                  "dreamer_no_dr": ("Dreamer from pixels, no DR", None),
+                  # TWIST's "Dreamer State Recon.": pixels in (with DR), the decoder
+                  # reconstructs the privileged state instead of the image
+                  "dreamer_state_recon": ("Dreamer State Recon. + DR",
+                                          VisualRandomisation.training())}
 
 
 @dataclass
@@ -287,13 +293,18 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
             "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
 
 
-def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Path) -> dict:
+def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Path,
+                        state_recon: bool = False) -> dict:
+    """A pixel-Dreamer baseline; ``state_recon``: its decoder reconstructs the state."""
     torch.manual_seed(seed)
-    agent = DreamerAgent.for_pixels(state_dim(task)[1], cfg.dreamer()).to(cfg.device)
+    n_state, n_action = state_dim(task)
+    agent = (DreamerAgent.for_pixels_state_recon(n_action, n_state, cfg.dreamer())
+             if state_recon else DreamerAgent.for_pixels(n_action, cfg.dreamer())).to(cfg.device)
     env = control_env(task, seed, pixels=True, visual=visual,
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
+    keys = dreamer_keys("pixels", "state") if state_recon else dreamer_keys("pixels")
     out = train_dreamer_online(agent, env, cfg.online(pixels=True), stage_dir,
-                               dreamer_keys("pixels"), desc=stage_dir.name,
+                               keys, desc=stage_dir.name,
                                seed=stage_seed(seed, stage_dir.name),
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
@@ -350,7 +361,8 @@ def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
     runner = stage_runner(cfg)
     visual = PIXEL_DREAMERS[suffix][1]
     _stage(runner, f"{task}_s{seed}_{suffix}",
-           lambda d: pixel_dreamer_stage(cfg, task, seed, visual, d))
+           lambda d: pixel_dreamer_stage(cfg, task, seed, visual, d,
+                                         state_recon=suffix == "dreamer_state_recon"))
 
 
 def main(argv=None):
@@ -377,9 +389,11 @@ def main(argv=None):
                 runs[name] = runner.result(f"{key}_{suffix}")
             records[key] = {"teacher": teacher, **runs}
             for name, r in runs.items():
-                entry = methods.setdefault(name, {"returns": [], "seed_means": []})
+                entry = methods.setdefault(name, {"returns": [], "seed_means": [],
+                                                  "seed_returns": []})
                 entry["returns"] += r["returns"]
                 entry["seed_means"].append(r["mean"])
+                entry["seed_returns"].append(r["returns"])
         results[task] = methods
 
     recording = None
