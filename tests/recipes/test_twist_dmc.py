@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[2]
 RECIPE = [sys.executable, str(ROOT / "recipes" / "twist_dmc.py")]
 METHODS = ["Oracle (state teacher)", "TWIST (student)", "TWIST w/o imagined alignment",
            "TWIST w/o action noise", "Dreamer from pixels + DR", "Dreamer from pixels, no DR",
-           "Dreamer State Recon. + DR"]
+           "Dreamer State Recon. + DR", "Asymmetric SAC + DR"]
 
 
 def _run(*args, timeout=300):
@@ -62,13 +62,17 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert (recon / "episodes" / "00000" / "next" / "state.memmap").exists()
     recon_agent = torch.load(recon / "dreamer_agent.pt", weights_only=True)
     assert recon_agent["config"]["reconstruct_key"] == "state"
+    # the Asymmetric SAC baseline trained (2 episodes x 20 / 10 updates) from stored steps
+    assert run["Asymmetric SAC + DR"]["updates"] == 4
+    assert (tmp_path / "stages" / "cartpole-balance_s0_asymmetric_sac" / "episodes" / "00001" /
+            "next" / "state.memmap").exists()
     assert (tmp_path / "training_curves.png").stat().st_size > 0
     # stages ran in two processes (the teacher chain beside the pixel Dreamers)
     assert results["jobs"] == 2 and "wall time this run" in proc.stdout
 
     again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1)  # in-process
     assert again.returncode == 0, again.stderr
-    assert again.stdout.count("already done") == 9  # 8 stages per task-seed + recording
+    assert again.stdout.count("already done") == 10  # 9 stages per task-seed + recording
     changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
     assert changed.returncode != 0 and "different config" in changed.stderr
 

@@ -96,8 +96,10 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
     under ``desc/``.
 
     Args:
-        agent: a :class:`~simdist.agents.DreamerAgent` (its ``policy`` acts, ``update``
-            trains); its primer must already be on ``env``.
+        agent: a :class:`~simdist.agents.DreamerAgent` or any agent with the same verbs
+            (``policy(explore=True)`` acts, ``update(slices)`` trains, ``state_dict``,
+            e.g. :class:`~simdist.agents.AsymmetricSACAgent`); its primer, if any, must
+            already be on ``env``.
         env: an unbatched env with ``InitTracker`` whose episodes last
             ``config.episode_steps``.
         keys: the keys of each step to keep (e.g. :func:`~simdist.pipelines.dreamer_keys`).
@@ -147,6 +149,6 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
             log_metrics(logger, desc, metrics, len(history))
         save_atomic({"agent": agent.state_dict(), "episodes": i + 1, "history": history,
                      "returns": returns}, checkpoint)
-        bar.set_postfix(episode_return=f"{returns[-1]:.0f}",
-                        loss_reconstruction=f"{history[-1]['loss_reconstruction']:.3g}")
+        losses = {k: f"{v:.3g}" for k, v in history[-1].items() if k.startswith("loss")}
+        bar.set_postfix(episode_return=f"{returns[-1]:.0f}", **dict(list(losses.items())[:2]))
     return {"episode_returns": returns, "history": history, "updates": len(history)}

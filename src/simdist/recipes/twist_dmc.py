@@ -15,6 +15,8 @@ finished stages and a killed stage resumes from its last checkpoint):
    updates: a pixel update costs ~4x a state update; ``paper`` gives all the same ratio).
    ``dreamer_state_recon``: TWIST's "Dreamer State Recon." baseline, a pixel Dreamer with
    DR whose decoder reconstructs the privileged state instead of the image (same budget).
+5. ``asymmetric_sac``: TWIST's model-free baseline, TorchRL SAC with a pixel actor and a
+   privileged-state critic, trained online with DR for the same environment steps.
 
 Every method is evaluated on **held-out** textures (train colours, camera jitter; drawn
 once per episode), on the same seeds.
@@ -40,7 +42,8 @@ from pathlib import Path
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
 
-from simdist.agents import DreamerAgent, DreamerConfig, TwistConfig, TwistStudent
+from simdist.agents import (AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgent,
+                             DreamerConfig, TwistConfig, TwistStudent)
 from simdist.envs import TASKS, VisualRandomisation
 from simdist.modules import RSSM_SIZES, DreamerWorldModel, PixelEncoder
 from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
@@ -58,6 +61,7 @@ TWIST = "TWIST (student)"
 STUDENTS = {"twist": (TWIST, {}),
             "no_imagined": ("TWIST w/o imagined alignment", {"imagined": False}),
             "no_noise": ("TWIST w/o action noise", {"action_noise_std": 0.0})}
+ASYMMETRIC_SAC = ("asymmetric_sac", "Asymmetric SAC + DR")  # (stage suffix, table name)
 # stage suffix -> (table name, visual randomisation while training)
 PIXEL_DREAMERS = {"dreamer_dr": ("Dreamer from pixels + DR", VisualRandomisation.training()),
                   "dreamer_no_dr": ("Dreamer from pixels, no DR", None),
@@ -113,6 +117,11 @@ class Config:
     # only). Measured (benchmarks/README.md, TWIST perception, H1; one seed): probe held-out
     # R^2 (x, cos) at 900 updates .40/.28 vs .47/.31 without; student 245 +- 28 vs 240 +- 44.
     train_camera: bool = False
+    # Asymmetric SAC baseline (pixel actor, state critic): the same environment steps and
+    # training DR as the pixel Dreamers; one SAC update of sac_batch transitions per
+    # sac_train_every agent steps (an update costs about a tenth of a pixel-Dreamer one)
+    sac_train_every: int = 4
+    sac_batch: int = 128
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
     critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
@@ -143,6 +152,7 @@ class Config:
               f"unknown size {self.model_size!r}; valid: {sorted(RSSM_SIZES)}")
         check_positive(self, "env_steps", "train_every", "pixel_train_every", "episode_steps",
                        "slice_len", "slices", "student_slice_len", "student_slices", "horizon",
+                       "sac_train_every", "sac_batch",
                        "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
                        "actor_lr", "critic_lr", "jobs")
         check(isinstance(self.train_camera, bool), "train_camera",
@@ -170,6 +180,11 @@ class Config:
                             episode_steps=self.episode_steps, slice_len=self.slice_len,
                             slices=self.slices)
 
+    def sac_online(self) -> OnlineConfig:
+        """The Asymmetric SAC's budget: slices of 2 steps give one transition each."""
+        return dataclasses.replace(self.online(pixels=True), train_every=self.sac_train_every,
+                                   slice_len=2, slices=self.sac_batch)
+
     def dreamer(self) -> DreamerConfig:
         return DreamerConfig(size=self.model_size, horizon=self.horizon,
                              imagination_starts=self.imagination_starts,
@@ -179,7 +194,7 @@ class Config:
 PRESETS = {
     "default": {},
     "tiny": {"model_size": "tiny", "env_steps": 40, "prefill_steps": 20, "train_every": 10,
-             "pixel_train_every": 10,
+             "pixel_train_every": 10, "sac_train_every": 10, "sac_batch": 4,
              "episode_steps": 20, "slice_len": 8, "slices": 2, "student_updates": 3,
              "student_slice_len": 8, "student_slices": 2, "horizon": 3,
              "imagination_starts": 8, "eval_episodes": 2, "eval_steps": 10},
@@ -315,6 +330,25 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
             "last": mean_metrics(out["history"])}
 
 
+def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
+    """TWIST's model-free baseline: SAC whose actor sees DR pixels and whose critic sees
+    the privileged state, trained online for the pixel Dreamers' environment steps."""
+    torch.manual_seed(seed)
+    agent = AsymmetricSACAgent(*state_dim(task), AsymmetricSACConfig(
+        depth=RSSM_SIZES[cfg.model_size]["depth"], lr=cfg.critic_lr))
+    env = control_env(task, seed, pixels=True, visual=VisualRandomisation.training(),
+                      max_episode_steps=cfg.episode_steps)
+    out = train_dreamer_online(agent, env, cfg.sac_online(), stage_dir,
+                               dreamer_keys("pixels", "state"), desc=stage_dir.name,
+                               seed=stage_seed(seed, stage_dir.name),
+                               logger=make_logger(cfg.logger, cfg.output_dir))
+    env.close()
+    result = evaluate(cfg, task, seed, agent.policy(explore=False), None, pixels=True)
+    return {**result, "checkpoint": str(stage_dir / "agent.pt"),
+            "episode_returns": out["episode_returns"], "updates": out["updates"],
+            "last": mean_metrics(out["history"])}
+
+
 def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path) -> dict:
     agent = load_teacher(cfg, task, teacher)
     twist = new_student(cfg, task, agent, {})
@@ -365,6 +399,12 @@ def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
                                          state_recon=suffix == "dreamer_state_recon"))
 
 
+def sac_chain(cfg: Config, task: str, seed: int) -> None:
+    """The Asymmetric SAC baseline: independent of the teacher, like the pixel Dreamers."""
+    _stage(stage_runner(cfg), f"{task}_s{seed}_{ASYMMETRIC_SAC[0]}",
+           lambda d: asymmetric_sac_stage(cfg, task, seed, d))
+
+
 def main(argv=None):
     cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
                           prog="twist_dmc.py")
@@ -375,6 +415,7 @@ def main(argv=None):
     chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
     chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
                for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
+    chains += [(sac_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
     start = time.perf_counter()
     run_jobs(chains, cfg.jobs)
 
@@ -387,6 +428,7 @@ def main(argv=None):
             runs = {ORACLE: runner.result(f"{key}_oracle")}
             for suffix, (name, _) in {**STUDENTS, **PIXEL_DREAMERS}.items():
                 runs[name] = runner.result(f"{key}_{suffix}")
+            runs[ASYMMETRIC_SAC[1]] = runner.result(f"{key}_{ASYMMETRIC_SAC[0]}")
             records[key] = {"teacher": teacher, **runs}
             for name, r in runs.items():
                 entry = methods.setdefault(name, {"returns": [], "seed_means": [],

@@ -1,0 +1,172 @@
+"""Asymmetric SAC (Pinto et al. 2018), TWIST's model-free baseline: the actor reads
+pixels, the critic reads the privileged state of the same step.
+
+Built on TorchRL's ``SACLoss`` (two Q-nets, learned entropy temperature, Polyak targets
+with ``SoftUpdate``): the asymmetry is only which keys each network reads, since TorchRL
+losses call each network on its own ``in_keys``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictModuleBase
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+from torchrl.objectives import SACLoss, SoftUpdate
+
+from simdist.agents.dreamer import check_unit_box
+from simdist.experts.networks import make_critic
+from simdist.modules import PixelEncoder, RandomShift
+from simdist.modules.checks import check_finite
+
+
+@dataclass
+class AsymmetricSACConfig:
+    """Settings of :class:`AsymmetricSACAgent` (DrQ-style random shift on the actor's
+    images, as pixel SAC needs on a small budget).
+
+    Examples:
+        >>> AsymmetricSACConfig().shift_pad
+        4
+    """
+
+    depth: int = 16  # first-layer channels of the actor's CNN (PixelEncoder)
+    hidden: int = 256  # actor head and critic MLP widths
+    lr: float = 3e-4
+    gamma: float = 0.99
+    tau: float = 0.005
+    alpha_init: float = 0.1
+    shift_pad: int = 4
+
+
+def transitions_from_slices(batch: TensorDictBase) -> TensorDict:
+    """``[B, T]`` slices of stored steps (only ``("next", ...)`` observations are kept)
+    -> ``[B * (T - 1)]`` transitions ``(o_t, s_t, a_t, r, o_{t+1}, s_{t+1}, done)``.
+
+    Step ``t``'s observation is step ``t - 1``'s ``next`` one, so each slice gives
+    ``T - 1`` transitions; a step that starts an episode (``is_init``) cannot have its
+    observation rebuilt this way and is dropped.
+
+    Examples:
+        >>> b = TensorDict({"action": torch.arange(6.).reshape(2, 3, 1),
+        ...     "is_init": torch.zeros(2, 3, 1, dtype=torch.bool),
+        ...     "next": {"state": torch.arange(6.).reshape(2, 3, 1) + 10,
+        ...              "pixels": torch.zeros(2, 3, 64, 64, 3, dtype=torch.uint8),
+        ...              "reward": torch.ones(2, 3, 1),
+        ...              "terminated": torch.zeros(2, 3, 1, dtype=torch.bool)}}, [2, 3])
+        >>> t = transitions_from_slices(b)
+        >>> t["state"].flatten().tolist(), t["action"].flatten().tolist()
+        ([10.0, 11.0, 13.0, 14.0], [1.0, 2.0, 4.0, 5.0])
+    """
+    if batch.ndim != 2 or batch.shape[1] < 2:
+        raise ValueError(f"need [slices, steps >= 2] slices, got batch shape {batch.shape}")
+    nxt = batch["next"]
+    terminated = nxt["terminated"][:, 1:].bool()
+    out = TensorDict({
+        "pixels": nxt["pixels"][:, :-1], "state": nxt["state"][:, :-1],
+        "action": batch["action"][:, 1:],
+        "next": {"pixels": nxt["pixels"][:, 1:], "state": nxt["state"][:, 1:],
+                 "reward": nxt["reward"][:, 1:], "terminated": terminated,
+                 "done": terminated.clone()}}, [batch.shape[0], batch.shape[1] - 1])
+    keep = ~batch["is_init"][:, 1:].reshape(out.shape).bool()
+    return out[keep]
+
+
+class AsymmetricSACAgent:
+    """Pixel actor, state critic, trained with TorchRL's ``SACLoss`` on stored slices.
+
+    ``update(batch)`` takes ``[B, T]`` slices as :class:`~simdist.pipelines.EpisodeReplay`
+    samples them (so :func:`~simdist.pipelines.train_dreamer_online` can train it);
+    ``policy()`` acts from ``"pixels"`` alone, as a deployed robot would.
+
+    Args:
+        state_dim: the privileged state's size (the critic's input).
+        action_dim: actions in ``[-1, 1]``.
+        config: :class:`AsymmetricSACConfig`.
+
+    Examples:
+        >>> agent = AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16))
+        >>> b = TensorDict({"action": torch.zeros(2, 3, 1),
+        ...     "is_init": torch.zeros(2, 3, 1, dtype=torch.bool),
+        ...     "next": {"state": torch.zeros(2, 3, 5),
+        ...              "pixels": torch.zeros(2, 3, 64, 64, 3, dtype=torch.uint8),
+        ...              "reward": torch.ones(2, 3, 1),
+        ...              "terminated": torch.zeros(2, 3, 1, dtype=torch.bool)}}, [2, 3])
+        >>> sorted(k for k in agent.update(b) if k.startswith("loss"))
+        ['loss_actor', 'loss_alpha', 'loss_qvalue']
+    """
+
+    def __init__(self, state_dim: int, action_dim: int,
+                 config: AsymmetricSACConfig = AsymmetricSACConfig()):
+        self.config, self.state_dim, self.action_dim = config, state_dim, action_dim
+        encoder = PixelEncoder(config.depth, norm="layer", input_norm="image")
+        net = nn.Sequential(encoder, MLP(in_features=encoder.embed_dim,
+                                         out_features=2 * action_dim,
+                                         num_cells=[config.hidden], activation_class=nn.ELU),
+                            NormalParamExtractor(scale_mapping="biased_softplus_1.0",
+                                                 scale_lb=1e-3))
+        spec = Bounded(-1.0, 1.0, (action_dim,))
+        self.actor = ProbabilisticActor(
+            TensorDictModule(net, in_keys=["pixels"], out_keys=["loc", "scale"]),
+            in_keys=["loc", "scale"], spec=spec, distribution_class=TanhNormal,
+            distribution_kwargs={"low": spec.space.low, "high": spec.space.high},
+            return_log_prob=False)
+        critic = make_critic(state_dim, action_dim, config.hidden, obs_key="state")
+        self.loss = SACLoss(self.actor, critic, num_qvalue_nets=2, loss_function="l2",
+                            alpha_init=config.alpha_init)
+        self.loss.make_value_estimator(gamma=config.gamma)
+        self.updater = SoftUpdate(self.loss, tau=config.tau)
+        self.optim = torch.optim.Adam(self.loss.parameters(), lr=config.lr)
+        self.shift = RandomShift(config.shift_pad, "frame") if config.shift_pad else None
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One SAC step on the transitions inside ``[B, T]`` slices."""
+        data = transitions_from_slices(batch)
+        if self.shift is not None:  # the actor's images only; the critic reads the state
+            data.set("pixels", self.shift(data["pixels"]))
+            data.set(("next", "pixels"), self.shift(data["next", "pixels"]))
+        out = self.loss(data)
+        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+        check_finite("asymmetric SAC loss", total)
+        self.optim.zero_grad(set_to_none=True)
+        total.backward()
+        self.optim.step()
+        self.updater.step()
+        return {k: float(v.detach().mean()) for k, v in out.items()}
+
+    def policy(self, explore: bool = True, action_spec=None) -> AsymmetricSACPolicy:
+        """Pixels -> action with the trained actor (a sample when ``explore``, else the
+        distribution's deterministic action)."""
+        check_unit_box(action_spec)
+        return AsymmetricSACPolicy(self.loss, explore)
+
+    def make_primer(self):
+        return None  # the actor is memoryless: nothing to carry between steps
+
+    def state_dict(self) -> dict:
+        return {"loss": self.loss.state_dict(), "optim": self.optim.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.loss.load_state_dict(state["loss"])
+        self.optim.load_state_dict(state["optim"])
+
+
+class AsymmetricSACPolicy(TensorDictModuleBase):
+    """The actor with ``SACLoss``'s trained parameters swapped in (the loss owns them)."""
+
+    def __init__(self, loss: SACLoss, explore: bool):
+        super().__init__()
+        self.loss, self.explore = loss, explore
+        self.in_keys, self.out_keys = ["pixels"], ["action"]
+
+    @torch.no_grad()
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        mode = ExplorationType.RANDOM if self.explore else ExplorationType.DETERMINISTIC
+        with set_exploration_type(mode), \
+                self.loss.actor_network_params.to_module(self.loss.actor_network):
+            return self.loss.actor_network(td)

@@ -1,0 +1,74 @@
+"""Asymmetric SAC: the actor reads pixels only, the critic the privileged state only."""
+
+import pytest
+import torch
+from tensordict import TensorDict
+
+from simdist.agents import AsymmetricSACAgent, AsymmetricSACConfig
+from simdist.agents.asymmetric_sac import transitions_from_slices
+
+
+def _slices(B=4, T=3, state_dim=5, action_dim=1):
+    torch.manual_seed(0)
+    return TensorDict({"action": torch.rand(B, T, action_dim) * 2 - 1,
+                       "is_init": torch.zeros(B, T, 1, dtype=torch.bool),
+                       "next": {"state": torch.randn(B, T, state_dim),
+                                "pixels": torch.randint(0, 255, (B, T, 64, 64, 3),
+                                                        dtype=torch.uint8),
+                                "reward": torch.ones(B, T, 1),
+                                "terminated": torch.zeros(B, T, 1, dtype=torch.bool)}}, [B, T])
+
+
+def test_transitions_pair_each_step_with_the_previous_next_and_drop_episode_starts():
+    batch = _slices(B=2, T=4)
+    batch["is_init"][1, 2] = True  # an episode starts inside slice 1 at step 2
+    t = transitions_from_slices(batch)
+    assert t.shape == (2 * 3 - 1,)
+    torch.testing.assert_close(t["pixels"][0], batch["next", "pixels"][0, 0])
+    torch.testing.assert_close(t["next", "pixels"][0], batch["next", "pixels"][0, 1])
+    torch.testing.assert_close(t["action"][0], batch["action"][0, 1])
+    # slice 1 keeps steps 1 and 3, not the episode start at step 2
+    torch.testing.assert_close(t["action"][3:], batch["action"][1, [1, 3]])
+    with pytest.raises(ValueError, match="slices"):
+        transitions_from_slices(batch[:, :1])
+
+
+def test_critic_reads_the_state_and_actor_the_pixels_and_both_learn():
+    agent = AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16))
+    loss = agent.loss
+    assert loss.actor_network.in_keys == ["pixels"]
+    assert set(loss.qvalue_network.in_keys) == {"state", "action"}
+    actor_before = loss.actor_network_params.clone()
+    q_before = loss.qvalue_network_params.clone()
+    for _ in range(3):
+        metrics = agent.update(_slices())
+    assert {"loss_actor", "loss_qvalue", "loss_alpha"} <= set(metrics)
+    moved = lambda a, b: any((x != y).any() for x, y in  # noqa: E731
+                             zip(a.values(True, True), b.values(True, True)))
+    assert moved(actor_before, loss.actor_network_params)
+    assert moved(q_before, loss.qvalue_network_params)
+    # the critic's input never involves an image: changing the pixels leaves Q unchanged
+    data = transitions_from_slices(_slices())
+    other = data.clone()
+    other["pixels"] = torch.zeros_like(other["pixels"])
+    with loss.qvalue_network_params[0].to_module(loss.qvalue_network):
+        q1 = loss.qvalue_network(data.clone())["state_action_value"]
+        q2 = loss.qvalue_network(other)["state_action_value"]
+    torch.testing.assert_close(q1, q2)
+
+
+def test_policy_acts_from_pixels_deterministically_when_not_exploring():
+    agent = AsymmetricSACAgent(5, 2, AsymmetricSACConfig(depth=4, hidden=16))
+    td = TensorDict({"pixels": torch.randint(0, 255, (3, 64, 64, 3), dtype=torch.uint8)}, [3])
+    a1 = agent.policy(explore=False)(td.clone())["action"]
+    a2 = agent.policy(explore=False)(td.clone())["action"]
+    torch.testing.assert_close(a1, a2)
+    assert a1.shape == (3, 2) and a1.abs().max() <= 1
+    sampled = agent.policy(explore=True)(td.clone())["action"]
+    assert not torch.equal(sampled, a1)
+    # a state saved mid-training restores the same policy
+    agent.update(_slices(action_dim=2))
+    copy = AsymmetricSACAgent(5, 2, AsymmetricSACConfig(depth=4, hidden=16))
+    copy.load_state_dict(agent.state_dict())
+    torch.testing.assert_close(copy.policy(explore=False)(td.clone())["action"],
+                               agent.policy(explore=False)(td.clone())["action"])
