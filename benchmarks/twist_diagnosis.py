@@ -15,6 +15,10 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   output to the teacher's embedding), then that encoder + head feed a student RSSM
   initialised from the teacher's (same shapes), then the usual Eq. 3 + Eq. 4 updates;
   prints the return and latent R^2 after the warm start (0 updates) and each budget.
+- ``noisy``: no student: the teacher itself on state with Gaussian noise added to the
+  state it reads, ``--noise`` times each dimension's standard deviation in D (all
+  dimensions, then the pole's sine alone, then the pole's angular velocity alone): how
+  precise must a student's perception be to keep the Oracle's return?
 - ``probe``: the student's CNN trained *supervised* to regress the state from one
   randomised image (5/6 of D's images to train, 1/6 held out); prints R^2 per state
   dimension: can the encoder see what the teacher's latent needs? Options: the encoder
@@ -47,6 +51,7 @@ Usage:
     python benchmarks/twist_diagnosis.py probe ... --train-camera   # H1, camera in training
     python benchmarks/twist_diagnosis.py probe --updates 600 --batch 128 --heldout-renders \
         --norm layer --input-norm image --shift 4 --arch keypoints --lr 1e-3
+    python benchmarks/twist_diagnosis.py noisy --noise 0,0.1,0.3,0.5 --episodes 10
     python benchmarks/twist_diagnosis.py warm --warm-updates 1200 --updates 0,300 \
         --arch keypoints --episodes 10
     python benchmarks/twist_diagnosis.py pixels --updates 300 --episodes 10 \
@@ -242,6 +247,32 @@ def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, 
     return out
 
 
+def noisy(args, cfg, teacher_result: dict) -> None:
+    """The Oracle with noisy state: the perception precision its return needs."""
+    teacher = recipe.load_teacher(cfg, args.task, teacher_result)
+    states = torch.cat([e["next", "state"] for e in load_episodes(teacher_result["data"])])
+    std, encoder = states.std(0), teacher.world_model.encoder
+    clean = encoder.forward
+    dims = states.shape[-1]
+    groups = {"all": list(range(dims))}
+    if args.task.startswith("cartpole"):  # (x, cos, sin, v, omega)
+        groups.update({"sin(pole)": [2], "pole angular velocity": [4]})
+    try:
+        for name, index in groups.items():
+            for level in args.noise:
+                scale = torch.zeros(dims)
+                scale[index] = level * std[index]
+                encoder.forward = lambda s, scale=scale: clean(s + torch.randn_like(s) * scale)
+                result = evaluate_returns(args.task, teacher.policy(explore=False),
+                                          teacher.make_primer(), args.seed + 10_000,
+                                          args.episodes, cfg.eval_steps, False, None)
+                print(json.dumps({"variant": "noisy", "dimensions": name, "noise_x_std": level,
+                                  "mean": round(result["mean"], 1),
+                                  "std": round(result["std"], 1)}), flush=True)
+    finally:
+        encoder.forward = clean
+
+
 def probe_encoder(args, cfg) -> torch.nn.Module:
     size = DreamerWorldModel.student(1, cfg.model_size).encoder
     depth = args.depth or size.net[0].out_channels
@@ -330,7 +361,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("variant", choices=["state", "pixels", "init", "warm", "probe"])
+    parser.add_argument("variant", choices=["state", "pixels", "init", "warm", "noisy", "probe"])
     parser.add_argument("--outputs", type=Path, default=Path("outputs/twist_dmc"))
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS))
     parser.add_argument("--task", default="cartpole-balance")
@@ -358,6 +389,9 @@ def main():
                         help="pixels: TwistConfig.standardise_belief")
     parser.add_argument("--arch", default="dreamer", choices=["dreamer", "keypoints"],
                         help="probe/pixels/warm: the encoder (PixelEncoder.arch)")
+    parser.add_argument("--noise", default="0,0.1,0.3,0.5",
+                        type=lambda s: [float(x) for x in s.split(",")],
+                        help="noisy: noise levels, in units of each state dimension's std")
     parser.add_argument("--warm-updates", type=int, default=1200,
                         help="warm: encoder-only updates before distillation")
     parser.add_argument("--name", default="base",
@@ -369,7 +403,8 @@ def main():
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS[args.preset])
     cfg = dataclasses.replace(cfg, student_arch=args.arch)
     teacher_result = teacher_stage(args.outputs, args.task, args.seed)
-    (probe if args.variant == "probe" else distil)(args, cfg, teacher_result)
+    run = {"probe": probe, "noisy": noisy}.get(args.variant, distil)
+    run(args, cfg, teacher_result)
 
 
 if __name__ == "__main__":

@@ -86,7 +86,9 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                                       "--heldout-renders"]),
                            ("probe", ["--train-camera"]),
                            ("pixels", ["--train-camera", "--standardise-belief",
-                                       "--name", "h"])):
+                                       "--name", "h"]),
+                           ("probe", ["--arch", "keypoints"]),
+                           ("warm", ["--arch", "keypoints", "--warm-updates", "2"])):
         diag = subprocess.run(
             [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
              "--preset", "tiny", "--outputs", str(tmp_path), "--updates", "2",
@@ -95,6 +97,9 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
         assert diag.returncode == 0, diag.stderr
         line = json.loads(diag.stdout.strip().splitlines()[-1])
         assert line["variant"] == variant and line["updates"] == 2
+        if variant == "warm":  # the warm start ran, then the student from the teacher's RSSM
+            assert '"warm_updates": 2' in diag.stdout and len(line["latent_r2"]) == 5
+            continue
         if variant == "pixels":
             assert "mean" in line and len(line["latent_r2"]) == len(line["teacher_r2"]) == 5
             assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
@@ -102,6 +107,17 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
         assert ("mean" in line) if variant == "state" else len(line["r2_test"]) == 5
         if "--heldout-renders" in extra:
             assert len(line["r2_heldout"]) == 5 and line["images_train"] % 2 == 0
+    # the noisy-Oracle variant: without noise every group is the same rollout
+    diag = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), "noisy",
+         "--preset", "tiny", "--outputs", str(tmp_path), "--noise", "0,0.5", "--episodes", "1"],
+        capture_output=True, text=True, timeout=300)
+    assert diag.returncode == 0, diag.stderr
+    lines = [json.loads(x) for x in diag.stdout.splitlines() if x.startswith("{")]
+    assert [x["dimensions"] for x in lines] == ["all", "all", "sin(pole)", "sin(pole)",
+                                                "pole angular velocity",
+                                                "pole angular velocity"]
+    assert len({x["mean"] for x in lines if x["noise_x_std"] == 0}) == 1
 
 
 def _recipe_module():
