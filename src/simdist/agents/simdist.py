@@ -87,7 +87,7 @@ class SimDistPolicy(TensorDictModuleBase):
             self.in_keys.append(PENDING)
             self.out_keys.append(("next", *PENDING))
 
-    def _in_flight(self, td, latent, is_init, batch, device) -> tuple[torch.Tensor, torch.Tensor]:
+    def _in_flight(self, td, latent, is_init, device) -> tuple[torch.Tensor, torch.Tensor]:
         """The latent rolled through the actions still in flight, and those actions."""
         k, action_dim = self.latency_compensation, self.world_model.action_dim
         pending = td.get(PENDING, None)
@@ -120,7 +120,7 @@ class SimDistPolicy(TensorDictModuleBase):
         latent = self.world_model.encode(history).reshape(-1, self.world_model.latent_dim)
         start = latent
         if self.latency_compensation:
-            start, pending = self._in_flight(td, latent, is_init, batch, device)
+            start, pending = self._in_flight(td, latent, is_init, device)
         plan = self.planner(TensorDict({"latent": start,
                                         "is_init": is_init.reshape(-1, 1)}, [latent.shape[0]]))
         if self.latency_compensation:
