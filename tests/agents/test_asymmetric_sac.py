@@ -72,3 +72,30 @@ def test_policy_acts_from_pixels_deterministically_when_not_exploring():
     copy.load_state_dict(agent.state_dict())
     torch.testing.assert_close(copy.policy(explore=False)(td.clone())["action"],
                                agent.policy(explore=False)(td.clone())["action"])
+
+
+def test_saved_file_rebuilds_the_same_policy_and_refuses_other_classes(tmp_path):
+    from simdist.agents import DreamerAgent, load_agent
+    from simdist.utils.checkpoint import CorruptCheckpointError
+
+    agent = AsymmetricSACAgent(5, 2, AsymmetricSACConfig(depth=4, hidden=16, shift_pad=2))
+    agent.update(_slices(action_dim=2))  # trained weights, not the initial ones
+    path = agent.save(tmp_path / "sac.pt", meta={"task": "cartpole-balance"})
+    loaded = load_agent(path)
+    assert type(loaded) is AsymmetricSACAgent and loaded.config.shift_pad == 2
+    assert loaded.checkpoint_meta == {"task": "cartpole-balance"}
+    td = TensorDict({"pixels": torch.randint(0, 255, (3, 64, 64, 3), dtype=torch.uint8)}, [3])
+    torch.testing.assert_close(loaded.policy(explore=False)(td.clone())["action"],
+                               agent.policy(explore=False)(td.clone())["action"])
+    for a, b in zip(loaded.optim.state_dict()["state"].values(),
+                    agent.optim.state_dict()["state"].values()):
+        torch.testing.assert_close(a["exp_avg"], b["exp_avg"])
+    with pytest.raises(CorruptCheckpointError, match="not a DreamerAgent"):
+        DreamerAgent.load(path)
+    bare = agent.save(tmp_path / "bare.pt", optimisers=False)
+    assert "optimisers" not in torch.load(bare, weights_only=True)
+    state = torch.load(path, weights_only=True)  # a file whose sizes do not fit its weights
+    state["config"]["state_dim"] = 7
+    torch.save(state, tmp_path / "bad.pt")
+    with pytest.raises(CorruptCheckpointError, match="do not fit"):
+        load_agent(tmp_path / "bad.pt")

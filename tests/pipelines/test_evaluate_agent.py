@@ -45,3 +45,11 @@ def test_twist_student_acts_from_pixels_in_unseen_scenes_and_records_a_video(tmp
     path = record_video(twist, "cartpole-balance", tmp_path / "student.mp4",
                         "unseen_scenes", steps=6, size=64)
     assert imageio_ffmpeg.count_frames_and_secs(str(path))[0] == 7  # reset + 6 steps
+
+
+def test_asymmetric_sac_agent_acts_from_pixels_without_a_primer():
+    from simdist.agents import AsymmetricSACAgent, AsymmetricSACConfig
+
+    agent = AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16))
+    out = evaluate_agent(agent, "cartpole-balance", "unseen_scenes", episodes=2, steps=4)
+    assert out["target"] == "unseen_scenes" and len(out["returns"]) == 2

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import torch
 
+from simdist.agents import load_agent
 from simdist.viz import entity_paths
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -64,6 +65,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert recon_agent["config"]["reconstruct_key"] == "state"
     # the Asymmetric SAC baseline trained (2 episodes x 20 / 10 updates) from stored steps
     assert run["Asymmetric SAC + DR"]["updates"] == 4
+    sac_file = tmp_path / "stages" / "cartpole-balance_s0_asymmetric_sac" / "sac_agent.pt"
+    assert load_agent(sac_file).checkpoint_meta["task"] == "cartpole-balance"
     assert (tmp_path / "stages" / "cartpole-balance_s0_asymmetric_sac" / "episodes" / "00001" /
             "next" / "state.memmap").exists()
     assert (tmp_path / "training_curves.png").stat().st_size > 0

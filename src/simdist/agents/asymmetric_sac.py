@@ -8,7 +8,10 @@ losses call each network on its own ``in_keys``.
 
 from __future__ import annotations
 
+import dataclasses
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -19,6 +22,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 from torchrl.objectives import SACLoss, SoftUpdate
 
+from simdist.agents import checkpoint as ckpt_format
 from simdist.agents.dreamer import check_unit_box
 from simdist.experts.networks import make_critic
 from simdist.modules import PixelEncoder, RandomShift
@@ -77,12 +81,14 @@ def transitions_from_slices(batch: TensorDictBase) -> TensorDict:
     return out[keep]
 
 
-class AsymmetricSACAgent:
+class AsymmetricSACAgent(ckpt_format.LoadableAgent):
     """Pixel actor, state critic, trained with TorchRL's ``SACLoss`` on stored slices.
 
     ``update(batch)`` takes ``[B, T]`` slices as :class:`~simdist.pipelines.EpisodeReplay`
     samples them (so :func:`~simdist.pipelines.train_dreamer_online` can train it);
-    ``policy()`` acts from ``"pixels"`` alone, as a deployed robot would.
+    ``policy()`` acts from ``"pixels"`` alone, as a deployed robot would. ``save(path)``
+    writes one self-describing file that :func:`~simdist.agents.load_agent` and
+    ``recipes/evaluate.py`` read back.
 
     Args:
         state_dim: the privileged state's size (the critic's input).
@@ -100,6 +106,9 @@ class AsymmetricSACAgent:
         >>> sorted(k for k in agent.update(b) if k.startswith("loss"))
         ['loss_actor', 'loss_alpha', 'loss_qvalue']
     """
+
+    #: what the deployed policy reads (``recipes/evaluate.py`` renders pixels for it)
+    obs_key = "pixels"
 
     def __init__(self, state_dim: int, action_dim: int,
                  config: AsymmetricSACConfig = AsymmetricSACConfig()):
@@ -154,6 +163,52 @@ class AsymmetricSACAgent:
     def load_state_dict(self, state: dict) -> None:
         self.loss.load_state_dict(state["loss"])
         self.optim.load_state_dict(state["optim"])
+
+    def to(self, device) -> AsymmetricSACAgent:
+        """Moves the actor, critics, targets and temperature (the optimiser follows its
+        parameters, which move in place)."""
+        self.loss.to(device)
+        return self
+
+    # -- self-describing checkpoints --------------------------------------------------
+    def save(self, path: str | os.PathLike, optimisers: bool = True,
+             meta: dict | None = None) -> Path:
+        """Writes one self-describing file: sizes, config, the loss's weights (actor,
+        both Q-nets, their targets, the temperature) and, unless ``optimisers=False``,
+        the optimiser. ``meta`` is free-form plain data (e.g. the task).
+
+        Examples:
+            >>> import tempfile
+            >>> agent = AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16))
+            >>> path = agent.save(Path(tempfile.mkdtemp()) / "sac.pt", meta={"task": "x"})
+            >>> loaded = AsymmetricSACAgent.load(path)
+            >>> loaded.config.depth, loaded.checkpoint_meta["task"]
+            (4, 'x')
+        """
+        config = {"sac": dataclasses.asdict(self.config), "state_dim": self.state_dim,
+                  "action_dim": self.action_dim}
+        return ckpt_format.write_agent_checkpoint(
+            path, "AsymmetricSACAgent", config, {"loss": self.loss.state_dict()},
+            {"optim": self.optim.state_dict()} if optimisers else None, meta)
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict, path="<checkpoint>",
+                        map_location=None) -> AsymmetricSACAgent:
+        """An agent from a validated checkpoint dict (see :meth:`load`)."""
+        config = ckpt["config"]
+        sac_config = ckpt_format.config_from_dict(
+            AsymmetricSACConfig, ckpt_format.part(config, path, "sac"), path,
+            "AsymmetricSACConfig")
+        dims = [ckpt_format.part(config, path, key) for key in ("state_dim", "action_dim")]
+        if not all(isinstance(d, int) and not isinstance(d, bool) and d > 0 for d in dims):
+            raise ckpt_format.incompatible(path, f"its state/action sizes {dims} are not "
+                                           "positive integers")
+        agent = cls(*dims, sac_config)
+        ckpt_format.load_weights(agent.loss, ckpt_format.part(ckpt["weights"], path, "loss"),
+                                 path, "loss")
+        ckpt_format.load_optimisers(agent, ckpt, ("optim",), path)
+        agent.checkpoint_meta = dict(ckpt.get("meta", {}))
+        return agent.to(map_location) if map_location is not None else agent
 
 
 class AsymmetricSACPolicy(TensorDictModuleBase):

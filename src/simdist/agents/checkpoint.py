@@ -6,7 +6,7 @@ it holds tensors and plain containers of numbers and strings, never pickled obje
 top level::
 
     {"format": "simdist-agent", "version": 1, "class": "SimDistAgent" | "DreamerAgent" |
-     "TwistStudent", "config": {...sizes, config dataclass fields...},
+     "TwistStudent" | "AsymmetricSACAgent", "config": {...sizes, config dataclass fields...},
      "weights": {...state dicts...}, "optimisers": {...} (optional), "meta": {...}}
 
 ``meta`` is free-form plain data from whoever saved the file (a recipe records the task
@@ -26,7 +26,7 @@ from simdist.utils.checkpoint import CorruptCheckpointError, load_checkpoint, re
 FORMAT = "simdist-agent"
 #: The newest format version this code reads and the one it writes.
 VERSION = 1
-CLASSES = ("SimDistAgent", "DreamerAgent", "TwistStudent")
+CLASSES = ("SimDistAgent", "DreamerAgent", "TwistStudent", "AsymmetricSACAgent")
 
 
 def check_plain(value: Any, where: str = "config") -> None:

@@ -1,10 +1,11 @@
 """Evaluate any saved agent in any task and target: returns with mean / IQM / 95% CI, and
 forward progress for locomotion; optionally an MP4 of one episode.
 
-Works for the three agent classes alike (:func:`simdist.agents.load_agent` gives one):
+Works for every agent class alike (:func:`simdist.agents.load_agent` gives one):
 a :class:`~simdist.agents.SimDistAgent` plans within the env's action spec, a
 :class:`~simdist.agents.DreamerAgent` acts from ``"state"`` or ``"pixels"``, a
-:class:`~simdist.agents.TwistStudent` acts from pixels. ``recipes/evaluate.py`` is the
+:class:`~simdist.agents.TwistStudent` and an :class:`~simdist.agents.AsymmetricSACAgent`
+act from pixels. ``recipes/evaluate.py`` is the
 command line over these functions.
 """
 
@@ -17,7 +18,7 @@ import numpy as np
 import torch
 from torchrl.envs import InitTracker, TransformedEnv
 
-from simdist.agents import DreamerAgent, SimDistAgent, TwistStudent
+from simdist.agents import AsymmetricSACAgent, DreamerAgent, SimDistAgent, TwistStudent
 from simdist.envs import get_target, get_task, make_env
 from simdist.modules import PlannerConfig
 from simdist.pipelines.locomotion import progress_stats, rollout
@@ -39,7 +40,9 @@ def evaluation_env(agent, task: str, target=None, episodes: int = 1, steps: int 
     env = TransformedEnv(make_env(task, target=target, pixels=pixels, num_envs=episodes,
                                   seed=seed, max_episode_steps=steps, image_size=image_size),
                          InitTracker())
-    env.append_transform(agent.make_primer())
+    primer = agent.make_primer()
+    if primer is not None:  # a memoryless actor (Asymmetric SAC) carries nothing
+        env.append_transform(primer)
     return env
 
 
@@ -47,10 +50,10 @@ def agent_policy(agent, env, planner: PlannerConfig | None = None, seed: int = 0
     """The agent's deterministic policy for ``env`` (``planner`` for a SimDist agent)."""
     if isinstance(agent, SimDistAgent):
         return agent.policy(action_spec=env.action_spec, config=planner, seed=seed)
-    if isinstance(agent, (DreamerAgent, TwistStudent)):
+    if isinstance(agent, (DreamerAgent, TwistStudent, AsymmetricSACAgent)):
         return agent.policy(explore=False, action_spec=env.action_spec)
     raise TypeError(f"cannot evaluate a {type(agent).__name__}: expected SimDistAgent, "
-                    "DreamerAgent or TwistStudent")
+                    "DreamerAgent, TwistStudent or AsymmetricSACAgent")
 
 
 def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int | None = None,

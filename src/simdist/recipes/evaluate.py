@@ -1,7 +1,7 @@
 """Evaluate a saved agent in any task and target: mean / IQM / bootstrap 95% CI, optional MP4.
 
-Loads one self-describing agent file (``SimDistAgent.save``, ``DreamerAgent.save`` or
-``TwistStudent.save``: weights and sizes in one file, no recipe code or other checkpoint
+Loads one self-describing agent file (``SimDistAgent.save``, ``DreamerAgent.save``,
+``TwistStudent.save`` or ``AsymmetricSACAgent.save``: weights and sizes in one file, no recipe code or other checkpoint
 needed), runs ``--episodes`` episodes in ``--task`` under ``--target`` and prints the
 return's mean, interquartile mean and bootstrap 95% confidence interval (and, for
 locomotion, the forward progress as a fraction of the commanded distance).
@@ -34,7 +34,7 @@ from simdist.viz.video import INSTALL_HINT, video_backend_available
 class Config:
     """Evaluation settings; every field is a ``--kebab-case`` flag, checked before any work."""
 
-    checkpoint: str = ""  # agent file written by SimDistAgent/DreamerAgent/TwistStudent.save
+    checkpoint: str = ""  # agent file written by an agent's save() (SimDist, Dreamer, TWIST, SAC)
     # task to run (a name in simdist.envs.TASKS); empty: the task recorded in the checkpoint
     task: str = ""
     # a name in simdist.envs.TARGETS, a JSON object of TargetDomain fields

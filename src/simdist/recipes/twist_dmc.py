@@ -343,8 +343,10 @@ def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> 
                                seed=stage_seed(seed, stage_dir.name),
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
+    agent.save(stage_dir / "sac_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
     result = evaluate(cfg, task, seed, agent.policy(explore=False), None, pixels=True)
-    return {**result, "checkpoint": str(stage_dir / "agent.pt"),
+    return {**result, "agent": str(stage_dir / "sac_agent.pt"),
+            "checkpoint": str(stage_dir / "agent.pt"),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
 
