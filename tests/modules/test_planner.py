@@ -51,6 +51,12 @@ def test_terminal_value_is_used():
                                  action_dim=1, seed=0,
                                  config=PlannerConfig(horizon=3, num_samples=128, num_elites=8))
     assert _plan(no_value, torch.zeros(4, 1))["action"].abs().mean() < 0.5
+    # value_weight scales the terminal value: 0 plans exactly as with no value head
+    plans = [_plan(LatentMPPIPlanner(
+        lambda z, a: z + a, lambda z, a: torch.zeros_like(z), value, action_dim=1, seed=0,
+        config=PlannerConfig(horizon=3, num_samples=128, num_elites=8, value_weight=w)),
+        torch.zeros(4, 1))["action"] for value, w in ((lambda z: z, 0.0), (None, 1.0))]
+    torch.testing.assert_close(*plans)
 
 
 def test_warm_start_shifts_the_previous_plan_and_resets_per_env():
@@ -120,6 +126,7 @@ def test_accepts_tensordict_modules_and_unbatched_latents():
     (dict(horizon=0), "horizon must be >= 1"),
     (dict(temperature=0.0), "temperature"),
     (dict(action_low=1.0, action_high=-1.0), "action bounds inverted"),
+    (dict(value_weight=-0.5), "value_weight must be >= 0"),
 ])
 def test_bad_configs_are_clear_errors(kwargs, message):
     with pytest.raises(ValueError, match=message):

@@ -57,6 +57,9 @@ class PlannerConfig:
     # the robot, so the plan starts where its first action will be applied. Used by
     # SimDistPolicy; the env needs SimDistAgent.make_primer(latency_compensation=k).
     latency_compensation: int = 0
+    # Weight of the terminal value gamma^H V(z_H) in a candidate's score (the reference:
+    # 1). 0 ranks candidates by their predicted rewards alone.
+    value_weight: float = 1.0
 
     def __post_init__(self):
         for name in ("horizon", "num_samples", "iterations", "num_elites",
@@ -69,7 +72,8 @@ class PlannerConfig:
                 raise ValueError(f"{name} must be >= "
                                  f"{0 if name == 'latency_compensation' else 1}, got {value}")
         for name in ("temperature", "gamma", "init_std", "min_std", "max_std",
-                     "policy_fraction", "policy_noise", "action_low", "action_high"):
+                     "policy_fraction", "policy_noise", "action_low", "action_high",
+                     "value_weight"):
             value = getattr(self, name)
             # NaN passes every "< 0" style check below, so test finiteness first.
             if not (isinstance(value, numbers.Real) and math.isfinite(value)):
@@ -88,6 +92,8 @@ class PlannerConfig:
             raise ValueError("policy_fraction must lie in [0, 1) and policy_noise >= 0")
         if not self.action_low < self.action_high:
             raise ValueError(f"action bounds inverted: {self.action_low} >= {self.action_high}")
+        if self.value_weight < 0:
+            raise ValueError(f"value_weight must be >= 0, got {self.value_weight}")
 
     @classmethod
     def reference(cls, **overrides) -> PlannerConfig:
@@ -232,7 +238,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             total = total + (self.config.gamma ** t) * r
             z = self._dynamics(z, flat[:, t])
         value = self._value(z).reshape(B * N) if self._value is not None else torch.zeros_like(total)
-        total = total + (self.config.gamma ** H) * value
+        total = total + self.config.value_weight * (self.config.gamma ** H) * value
         return total.reshape(B, N), torch.stack(rewards, -1).reshape(B, N, H), value.reshape(B, N)
 
     def _policy_proposals(self, latent: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
