@@ -30,7 +30,9 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   ``train_camera`` randomisation: a camera-pose draw per image, so one teacher serves both
   arms).
 
-``pixels`` prints, after each budget, the held-out return and the student's latent R^2:
+``pixels`` prints, after each budget, the held-out return and the student's latent R^2
+(and, with ``--eval-scenes heldout_nocam training``, the return on held-out textures
+without the camera jitter and on training scenes):
 the teacher's decoder applied to the student's posterior features on 128 slices of D's
 recorded images, per state dimension (``latent_r2``; ``teacher_r2``: the same with the
 teacher's own posterior, the ceiling). ``--train-camera`` trains the student on D with
@@ -158,14 +160,29 @@ def distil(args, cfg, teacher_result: dict) -> None:
             cfg_eval = dataclasses.replace(cfg, eval_episodes=args.episodes)
             result = recipe.evaluate(cfg_eval, args.task, args.seed, twist.policy(),
                                      twist.make_primer(), pixels=True)
-        extra = {}
+        scenes = {}  # the same student on other scenes: which part of the shift costs return
+        for name in args.eval_scenes if args.variant != "state" else []:
+            scene = evaluate_returns(args.task, twist.policy(), twist.make_primer(),
+                                     args.seed + 10_000, args.episodes, cfg.eval_steps, True,
+                                     EVAL_SCENES[name])
+            scenes[name] = {"mean": scene["mean"], "std": scene["std"]}
+        extra = {"scenes": scenes} if scenes else {}
         if args.variant != "state":
-            extra = latent_r2(twist, probe_batch)
+            extra.update(latent_r2(twist, probe_batch))
         print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
                           "lr": args.lr, "mean": result["mean"], "std": result["std"], **extra,
                           "train_s": round(seconds, 1),
                           "last": mean_metrics(history, 50) if history else None}),
               flush=True)
+
+
+#: ``--eval-scenes``: besides the recipe's held-out scenes (textures never trained on and
+#: camera jitter, drawn per episode), the same without the camera jitter, and the training
+#: textures and colours drawn once per episode with no camera jitter.
+EVAL_SCENES = {
+    "heldout_nocam": VisualRandomisation.heldout_evaluation(camera=False),
+    "training": VisualRandomisation.training(every_step=False),
+}
 
 
 def warm_start(args, twist: TwistStudent, episodes: list) -> None:
@@ -398,6 +415,8 @@ def main():
                         help="a label for the log (pixels: also the checkpoint folder)")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--eval-scenes", nargs="*", default=[], choices=sorted(EVAL_SCENES),
+                        help="pixels/init/warm: also evaluate on these scenes")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS[args.preset])

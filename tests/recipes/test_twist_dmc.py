@@ -89,7 +89,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                                       "--heldout-renders"]),
                            ("probe", ["--train-camera"]),
                            ("pixels", ["--train-camera", "--standardise-belief",
-                                       "--name", "h"]),
+                                       "--name", "h", "--eval-scenes", "training"]),
                            ("probe", ["--arch", "keypoints"]),
                            ("warm", ["--arch", "keypoints", "--warm-updates", "2"])):
         diag = subprocess.run(
@@ -105,6 +105,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
             continue
         if variant == "pixels":
             assert "mean" in line and len(line["latent_r2"]) == len(line["teacher_r2"]) == 5
+            assert set(line["scenes"]) == {"training"} and "mean" in line["scenes"]["training"]
             assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
             continue
         assert ("mean" in line) if variant == "state" else len(line["r2_test"]) == 5
