@@ -28,7 +28,9 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   under the recipe's evaluation scenes, with and without the camera jitter) and
   ``--train-camera`` (the training images are D's states re-rendered under the recipe's
   ``train_camera`` randomisation: a camera-pose draw per image, so one teacher serves both
-  arms).
+  arms). ``--frames 2`` reads each recorded image together with the one a control step
+  earlier (the shared encoder's features and their change, one shift for both): can two
+  frames give the velocities one image cannot?
 
 ``pixels`` prints, after each budget, the held-out return and the student's latent R^2
 (and, with ``--eval-scenes heldout_nocam training``, the return on held-out textures
@@ -53,6 +55,8 @@ Usage:
     python benchmarks/twist_diagnosis.py probe ... --train-camera   # H1, camera in training
     python benchmarks/twist_diagnosis.py probe --updates 600 --batch 128 --heldout-renders \
         --norm layer --input-norm image --shift 4 --arch keypoints --lr 1e-3
+    python benchmarks/twist_diagnosis.py probe --updates 600,1500 --batch 128 --norm layer \
+        --input-norm image --shift 4 --arch keypoints --lr 1e-3 --frames 2   # image pairs
     python benchmarks/twist_diagnosis.py noisy --noise 0,0.1,0.3,0.5 --episodes 10
     python benchmarks/twist_diagnosis.py warm --warm-updates 1200 --updates 0,300 \
         --arch keypoints --episodes 10
@@ -306,9 +310,22 @@ def probe(args, cfg, teacher_result: dict) -> None:
     evaluation randomisation (held-out textures, camera jitter): the student's test.
     """
     torch.manual_seed(args.seed)
+    frames = args.frames
+    if frames == 2 and (args.heldout_renders or args.train_camera or args.extra_renders):
+        raise SystemExit("--frames 2 reads consecutive recorded images of D; it cannot be "
+                         "combined with re-rendered images (--heldout-renders, "
+                         "--train-camera, --extra-renders)")
     episodes = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
     pixels = torch.cat([e["next", "pixels"].flatten(0, -4) for e in episodes])
     states = torch.cat([e["next", "state"].flatten(0, -2) for e in episodes])
+    lengths = [len(e["next", "state"].flatten(0, -2)) for e in episodes]
+    first = torch.tensor([0, *lengths[:-1]]).cumsum(0)
+    previous = torch.arange(len(pixels)) - 1  # the image one control step earlier
+    previous[first] = first  # an episode's first image has no earlier one in D: itself
+
+    def pairs(index):  # [N, 2, H, W, C]: each image and the one before it
+        return torch.stack([pixels[index], pixels[previous[index]]], 1)
+
     order = torch.randperm(len(pixels))
     test, train = order[: len(order) // 6], order[len(order) // 6:]
     cache = args.work / "probe_renders"
@@ -332,14 +349,22 @@ def probe(args, cfg, teacher_result: dict) -> None:
                                      args.seed + 30_000, args.extra_renders), path)
         images = torch.cat([images, torch.load(path)])
     encoder = probe_encoder(args, cfg)
-    shift = None  # a probe batch is one image per state: per frame
+    shift = None  # one image per state: per frame; an image pair: one shift for both
+    per = "frame" if frames == 1 else "sequence"
     if args.shift or args.rotate:
-        shift = torch.nn.Sequential(RandomShift(args.shift, "frame"),
-                                    RandomRotate(args.rotate, "frame"))
-    head = torch.nn.Linear(encoder.embed_dim, states.shape[-1])
+        shift = torch.nn.Sequential(RandomShift(args.shift, per),
+                                    RandomRotate(args.rotate, per))
+    features = encoder.embed_dim * frames
+    head = torch.nn.Linear(features, states.shape[-1])
     if args.arch == "keypoints":  # coordinates -> state is not linear (angles of offsets)
-        head = torch.nn.Sequential(torch.nn.Linear(encoder.embed_dim, 256), torch.nn.ELU(),
+        head = torch.nn.Sequential(torch.nn.Linear(features, 256), torch.nn.ELU(),
                                    torch.nn.Linear(256, states.shape[-1]))
+
+    def encode(x):  # late fusion of a pair: the features now and their change in one step
+        if frames == 1:
+            return encoder(x)
+        f = encoder(x)
+        return torch.cat([f[:, 0], f[:, 0] - f[:, 1]], -1)
     params = [*encoder.parameters(), *head.parameters()]
     optim = torch.optim.Adam(params, lr=args.lr or 3e-4)
     mean, std = states[train].mean(0), states[train].std(0)
@@ -348,7 +373,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
         encoder.eval()
         with torch.no_grad():
             target = (y - mean) / std
-            error = torch.cat([head(encoder(x[i:i + 500])) for i in range(0, len(x), 500)])
+            error = torch.cat([head(encode(x[i:i + 500])) for i in range(0, len(x), 500)])
             error = (error - target).pow(2).mean(0)
         encoder.train()
         return [round(v, 2) for v in (1 - error / target.var(0)).tolist()]
@@ -358,18 +383,20 @@ def probe(args, cfg, teacher_result: dict) -> None:
     for step in range(1, args.updates[-1] + 1):
         index = torch.randint(n, (args.batch,))
         render = torch.randint(len(images), (args.batch,))
-        batch = images[render, index]
+        batch = images[render, index] if frames == 1 else pairs(train[index])
         if shift is not None:
             batch = shift(batch)
-        loss = (head(encoder(batch)) - (states[train[index]] - mean) / std).pow(2).mean()
+        loss = (head(encode(batch)) - (states[train[index]] - mean) / std).pow(2).mean()
         optim.zero_grad()
         loss.backward()
         optim.step()
         if step in args.updates or step % 300 == 0:
             record = {"variant": "probe", "probe": args.name, "updates": step,
                       "images_train": n * len(images), "images_test": len(test),
-                      "r2_test": r2(pixels[test], states[test]),
-                      "r2_train": r2(images[0, :len(test)], states[train[:len(test)]])}
+                      "frames": frames,
+                      "r2_test": r2(pixels[test] if frames == 1 else pairs(test), states[test]),
+                      "r2_train": r2(images[0, :len(test)] if frames == 1
+                                     else pairs(train[:len(test)]), states[train[:len(test)]])}
             for name, images_heldout in heldout.items():
                 record[f"r2_{name}"] = r2(images_heldout, states[test])
             record["seconds"] = round(time.perf_counter() - start, 1)
@@ -415,6 +442,8 @@ def main():
                         help="a label for the log (pixels: also the checkpoint folder)")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--frames", type=int, default=1, choices=[1, 2],
+                        help="probe: 2 reads each image with the one before it (late fusion)")
     parser.add_argument("--eval-scenes", nargs="*", default=[], choices=sorted(EVAL_SCENES),
                         help="pixels/init/warm: also evaluate on these scenes")
     args = parser.parse_args()

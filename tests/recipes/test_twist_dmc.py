@@ -91,6 +91,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                            ("pixels", ["--train-camera", "--standardise-belief",
                                        "--name", "h", "--eval-scenes", "training"]),
                            ("probe", ["--arch", "keypoints"]),
+                           ("probe", ["--frames", "2", "--shift", "2"]),
                            ("warm", ["--arch", "keypoints", "--warm-updates", "2"])):
         diag = subprocess.run(
             [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
@@ -109,6 +110,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
             assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
             continue
         assert ("mean" in line) if variant == "state" else len(line["r2_test"]) == 5
+        if "--frames" in extra:  # each image read with the one before it
+            assert line["frames"] == 2
         if "--heldout-renders" in extra:
             assert len(line["r2_heldout"]) == 5 and line["images_train"] % 2 == 0
     # the noisy-Oracle variant: without noise every group is the same rollout
