@@ -201,3 +201,56 @@ def test_wrong_latent_size_and_is_init_batch_fail_at_the_boundary():
                               PlannerConfig(horizon=2, num_samples=8, num_elites=2))
     with pytest.raises(RuntimeError, match="planning from 'latent' of shape \\(2, 5\\)"):
         _plan(plain, torch.zeros(2, 5))
+
+
+def _reference_plan(planner, latent, mean, sample_noise, policy_noise):
+    """MPPI as written in docs/methods.md 1.4: every iteration rescores all candidates,
+    proposals included (what the planner did before it scored the proposals once)."""
+    c = planner.config
+    proposals = planner._policy_proposals(latent, policy_noise)[0]
+    std = torch.full_like(mean, c.init_std)
+    for i in range(c.iterations):
+        actions = (mean[:, None] + std[:, None] * sample_noise[i]).clamp(-1, 1)
+        actions = torch.cat([proposals, actions], 1)
+        scores, _, _ = planner._evaluate(latent, actions)
+        elite_scores, index = scores.topk(c.num_elites, dim=1)
+        elites = actions.gather(1, index[..., None, None].expand(-1, -1, *actions.shape[2:]))
+        spread = (elite_scores[:, :1] - elite_scores[:, -1:]).clamp_min(1e-6)
+        w = torch.softmax((elite_scores - elite_scores[:, :1]) / (spread * c.temperature), 1)
+        mean = (w[..., None, None] * elites).sum(1).clamp(-1, 1)
+        std = (w[..., None, None] * (elites - mean[:, None]).pow(2)).sum(1).sqrt().clamp(
+            c.min_std, c.max_std)
+    return mean, std, elites
+
+
+def test_proposals_scored_once_plan_as_rescoring_them_every_iteration():
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(obs_dim=7, action_dim=3, size="tiny")
+    cfg = PlannerConfig(horizon=4, num_samples=24, num_elites=6, iterations=3,
+                        policy_fraction=0.5, policy_noise=0.3)
+    planner = LatentMPPIPlanner.from_world_model(wm, cfg, seed=0)
+    B, P, A = 3, cfg.num_policy, 3
+    latent = torch.randn(B, wm.latent_dim)
+    mean = torch.zeros(B, cfg.horizon, A)
+    sample_noise = torch.randn(cfg.iterations, B, cfg.num_samples - P, cfg.horizon, A)
+    policy_noise = torch.randn(B, P, cfg.horizon, A)
+    with torch.no_grad():
+        actions, scores, rewards, values = planner._policy_proposals(latent, policy_noise)
+        # the scores gathered along the proposing rollout are a fresh evaluation's
+        for got, want in zip((scores, rewards, values), planner._evaluate(latent, actions)):
+            torch.testing.assert_close(got, want)
+        got = planner._plan(latent, mean, sample_noise, policy_noise)
+        want = _reference_plan(planner, latent, mean, sample_noise, policy_noise)
+    for g, w in zip((got[0], got[1], got[4]), want):
+        torch.testing.assert_close(g, w)
+
+
+def test_all_samples_from_the_policy_prior():
+    # policy_fraction rounds to every sample: no random candidates, the proposals alone
+    cfg = PlannerConfig(horizon=2, num_samples=8, num_elites=2, iterations=2,
+                        policy_fraction=0.99, policy_noise=0.0)
+    assert cfg.num_policy == cfg.num_samples
+    planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -(a - 0.4).pow(2), None, 1, cfg,
+                                policy=lambda z: torch.full((z.shape[0], 1), 0.4), seed=0)
+    torch.testing.assert_close(_plan(planner, torch.zeros(2, 1))["action"],
+                               torch.full((2, 1), 0.4))

@@ -241,31 +241,51 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         total = total + self.config.value_weight * (self.config.gamma ** H) * value
         return total.reshape(B, N), torch.stack(rewards, -1).reshape(B, N, H), value.reshape(B, N)
 
-    def _policy_proposals(self, latent: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
-        """``[B, P, H, A]`` action sequences from rolling the policy prior (+ noise)."""
+    def _policy_proposals(self, latent: torch.Tensor, noise: torch.Tensor):
+        """Roll the policy prior (+ noise) from ``latent`` and score the result.
+
+        Returns ``[B, P, H, A]`` action sequences with their discounted returns
+        ``[B, P]``, rewards ``[B, P, H]`` and terminal values ``[B, P]``: the same
+        quantities :meth:`_evaluate` gives, computed along the rollout that proposes the
+        actions (reward of ``(z_t, a_t)``, then ``z_{t+1} = f(z_t, a_t)``), so the
+        proposals are never rolled through the dynamics a second time.
+        """
         c = self.config
         B, P = latent.shape[0], noise.shape[1]
         z = latent[:, None].expand(B, P, latent.shape[-1]).reshape(B * P, -1)
-        out = []
+        total = torch.zeros(B * P, device=latent.device, dtype=latent.dtype)
+        out, rewards = [], []
         for t in range(c.horizon):
             a = self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
             a = a.clamp(self.action_low, self.action_high)
             out.append(a)
+            r = self._reward(z, a).reshape(B * P)
+            rewards.append(r)
+            total = total + (c.gamma ** t) * r
             z = self._dynamics(z, a)
-        return torch.stack(out, 1).reshape(B, P, c.horizon, -1)
+        value = self._value(z).reshape(B * P) if self._value is not None else torch.zeros_like(total)
+        total = total + c.value_weight * (c.gamma ** c.horizon) * value
+        return (torch.stack(out, 1).reshape(B, P, c.horizon, -1), total.reshape(B, P),
+                torch.stack(rewards, -1).reshape(B, P, c.horizon), value.reshape(B, P))
 
     def _plan(self, latent, mean, sample_noise, policy_noise):
         c = self.config
         B, K = latent.shape[0], c.num_elites
         std = torch.full_like(mean, c.init_std)
+        # The proposals do not change across iterations (same latent, same actions), so
+        # they are rolled out and scored once; each iteration scores only its new random
+        # samples (with 90% proposals, ~2.2x less model work than rescoring all).
         proposals = (self._policy_proposals(latent, policy_noise)
                      if policy_noise is not None else None)
         for i in range(c.iterations):
-            actions = (mean[:, None] + std[:, None] * sample_noise[i]).clamp(
-                self.action_low, self.action_high)
+            parts = []
+            if sample_noise.shape[2]:
+                actions = (mean[:, None] + std[:, None] * sample_noise[i]).clamp(
+                    self.action_low, self.action_high)
+                parts.append((actions, *self._evaluate(latent, actions)))
             if proposals is not None:
-                actions = torch.cat([proposals, actions], 1)
-            scores, rewards, values = self._evaluate(latent, actions)
+                parts.insert(0, proposals)
+            actions, scores, rewards, values = (torch.cat(x, 1) for x in zip(*parts))
             # Non-finite scores (a diverging model) rank last instead of poisoning the update.
             scores = torch.nan_to_num(scores, nan=-1e30, posinf=1e30, neginf=-1e30)
             elite_scores, index = scores.topk(K, dim=1)
