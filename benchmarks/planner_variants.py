@@ -37,6 +37,21 @@ def parse_variant(text: str) -> tuple[str, dict]:
     return name, overrides
 
 
+def reward_calibration(td) -> dict:
+    """Is the planner's model optimistic where it acts? For every step ``t`` with ``H``
+    steps after it, the mean reward the planner predicted along the plan it chose
+    (``("planner", "rewards")``, ``[B, T, H]``) against the mean reward the env paid over
+    steps ``t .. t+H-1``; averaged over envs and steps, and their correlation."""
+    predicted = td["planner", "rewards"]
+    paid = td["next", "reward"].reshape(predicted.shape[:2])
+    horizon, steps = predicted.shape[-1], predicted.shape[1]
+    windows = paid.unfold(1, horizon, 1).mean(-1)[:, :steps - horizon]  # [B, T-H]
+    planned = predicted[:, :steps - horizon].mean(-1)
+    both = torch.stack([planned.flatten(), windows.flatten()])
+    return {"predicted": planned.mean().item(), "paid": windows.mean().item(),
+            "correlation": torch.corrcoef(both)[0, 1].item()}
+
+
 class PriorPolicy(torch.nn.Module):
     """The world model's BC policy head on the encoded history (no planning)."""
 
@@ -63,6 +78,9 @@ def main(argv=None):
     parser.add_argument("--prior", action="store_true", help="also evaluate the BC prior alone")
     parser.add_argument("--episodes", type=int, default=None, help="default: the run's")
     parser.add_argument("--weights", default=None, help="world-model weights (default: pretrained)")
+    parser.add_argument("--calibration", action="store_true",
+                        help="also print the planner's predicted reward along its chosen plan "
+                             "against the reward the env then paid (see reward_calibration)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     run = Path(args.run)
@@ -91,13 +109,18 @@ def main(argv=None):
             policy = agent.policy(spec.space.low[0], spec.space.high[0], planner, seed=cfg.seed)
             if overrides is None:
                 policy = PriorPolicy(policy)
-            stats = progress_stats(rollout(env, policy, cfg.episode_steps),
-                                   env.base_env.observation_layout["command"].start)
+            td = rollout(env, policy, cfg.episode_steps)
+            stats = progress_stats(td, env.base_env.observation_layout["command"].start)
             env.close()
             low, high = stats["ci_fraction"]
+            extra = ""
+            if args.calibration and overrides is not None:
+                c = reward_calibration(td)
+                extra = (f" predicted {c['predicted']:.3f}, paid {c['paid']:.3f}, "
+                         f"corr {c['correlation']:.2f} |")
             print(f"| {name} {overrides or ''} | {domain} | {100 * stats['mean_fraction']:.0f}% "
                   f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) | "
-                  f"{time.perf_counter() - start:.0f} |", flush=True)
+                  f"{time.perf_counter() - start:.0f} |{extra}", flush=True)
 
 
 if __name__ == "__main__":
