@@ -72,6 +72,10 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--compile", action="store_true")
+    parser.add_argument("--batch", type=int, default=1,
+                        help="environments planned for at once (the recipe evaluates 32)")
+    parser.add_argument("--configs", nargs="+", default=None,
+                        help="only these configs (default: all)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     args = parser.parse_args()
     torch.manual_seed(0)
@@ -87,11 +91,13 @@ def main():
           f"actions {wm.action_dim}, MLP width 256")
     print(f"{'config':18s} {'H x N x iters (K)':>20s} {'simdist ms':>11s} {'compiled ms':>12s} "
           f"{'torchrl ms':>11s} {'speed-up':>9s}")
+    if args.configs:
+        configs = {k: configs[k] for k in args.configs}
     for name, cfg in configs.items():
         calls = 3 if args.quick else (30 if cfg.num_samples < 200 else 8)
-        latent = torch.rand(1, wm.latent_dim, device=device)
+        latent = torch.rand(args.batch, wm.latent_dim, device=device)
         ours = LatentMPPIPlanner.from_world_model(wm, cfg, seed=0)
-        td = TensorDict({"latent": latent}, [1], device=device)
+        td = TensorDict({"latent": latent}, [args.batch], device=device)
         ours_ms = latency_ms(lambda: ours(td.clone()), calls)
         compiled_ms = float("nan")
         # The reference config is a GPU config: compiling its 8 x 25 unrolled loop on a
