@@ -225,48 +225,47 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         return shifted
 
     # -- the algorithm --------------------------------------------------------------------
-    def _evaluate(self, latent: torch.Tensor, actions: torch.Tensor):
-        """Discounted return of ``actions [B, N, H, A]`` from ``latent [B, L]``."""
-        B, N, H, _ = actions.shape
-        z = latent[:, None].expand(B, N, latent.shape[-1]).reshape(B * N, -1)
-        flat = actions.reshape(B * N, H, -1)
-        total = torch.zeros(B * N, device=latent.device, dtype=latent.dtype)
-        rewards = []
-        for t in range(H):
-            r = self._reward(z, flat[:, t]).reshape(B * N)
-            rewards.append(r)
-            total = total + (self.config.gamma ** t) * r
-            z = self._dynamics(z, flat[:, t])
-        value = self._value(z).reshape(B * N) if self._value is not None else torch.zeros_like(total)
-        total = total + self.config.value_weight * (self.config.gamma ** H) * value
-        return total.reshape(B, N), torch.stack(rewards, -1).reshape(B, N, H), value.reshape(B, N)
+    def _rollout(self, latent: torch.Tensor, n: int, action_at):
+        """Rolls ``n`` candidates per env from ``latent [B, L]`` for ``H`` steps, the action
+        of step ``t`` given by ``action_at(t, z_t)`` (``[B * n, A]``), scoring as it goes.
 
-    def _policy_proposals(self, latent: torch.Tensor, noise: torch.Tensor):
-        """Roll the policy prior (+ noise) from ``latent`` and score the result.
-
-        Returns ``[B, P, H, A]`` action sequences with their discounted returns
-        ``[B, P]``, rewards ``[B, P, H]`` and terminal values ``[B, P]``: the same
-        quantities :meth:`_evaluate` gives, computed along the rollout that proposes the
-        actions (reward of ``(z_t, a_t)``, then ``z_{t+1} = f(z_t, a_t)``), so the
-        proposals are never rolled through the dynamics a second time.
+        Returns the actions ``[B, n, H, A]``, discounted returns ``[B, n]`` (rewards of
+        ``(z_t, a_t)`` plus the weighted terminal value), rewards ``[B, n, H]`` and terminal
+        values ``[B, n]``.
         """
-        c = self.config
-        B, P = latent.shape[0], noise.shape[1]
-        z = latent[:, None].expand(B, P, latent.shape[-1]).reshape(B * P, -1)
-        total = torch.zeros(B * P, device=latent.device, dtype=latent.dtype)
-        out, rewards = [], []
-        for t in range(c.horizon):
-            a = self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
-            a = a.clamp(self.action_low, self.action_high)
-            out.append(a)
-            r = self._reward(z, a).reshape(B * P)
+        c, B, H = self.config, latent.shape[0], self.config.horizon
+        z = latent[:, None].expand(B, n, latent.shape[-1]).reshape(B * n, -1)
+        total = torch.zeros(B * n, device=latent.device, dtype=latent.dtype)
+        actions, rewards = [], []
+        for t in range(H):
+            a = action_at(t, z)
+            actions.append(a)
+            r = self._reward(z, a).reshape(B * n)
             rewards.append(r)
             total = total + (c.gamma ** t) * r
             z = self._dynamics(z, a)
-        value = self._value(z).reshape(B * P) if self._value is not None else torch.zeros_like(total)
-        total = total + c.value_weight * (c.gamma ** c.horizon) * value
-        return (torch.stack(out, 1).reshape(B, P, c.horizon, -1), total.reshape(B, P),
-                torch.stack(rewards, -1).reshape(B, P, c.horizon), value.reshape(B, P))
+        value = self._value(z).reshape(B * n) if self._value is not None else torch.zeros_like(total)
+        total = total + c.value_weight * (c.gamma ** H) * value
+        return (torch.stack(actions, 1).reshape(B, n, H, -1), total.reshape(B, n),
+                torch.stack(rewards, -1).reshape(B, n, H), value.reshape(B, n))
+
+    def _evaluate(self, latent: torch.Tensor, actions: torch.Tensor):
+        """Discounted return, rewards and terminal value of ``actions [B, N, H, A]``."""
+        B, N, H, _ = actions.shape
+        flat = actions.reshape(B * N, H, -1)
+        return self._rollout(latent, N, lambda t, z: flat[:, t])[1:]
+
+    def _policy_proposals(self, latent: torch.Tensor, noise: torch.Tensor):
+        """Rolls the policy prior (+ noise) from ``latent`` and scores the result on the way.
+
+        Returns the proposals ``[B, P, H, A]`` with the same returns, rewards and values
+        :meth:`_evaluate` would give them, so they are never rolled through the dynamics a
+        second time.
+        """
+        c, B, P = self.config, latent.shape[0], noise.shape[1]
+        return self._rollout(latent, P, lambda t, z: (
+            self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
+        ).clamp(self.action_low, self.action_high))
 
     def _plan(self, latent, mean, sample_noise, policy_noise):
         c = self.config
