@@ -67,6 +67,14 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     changed = _run("--preset", "tiny", "--episodes", 3, "--expert", tiny_expert,
                    "--output-dir", tmp_path)
     assert changed.returncode != 0 and "different config" in changed.stderr
+    # A stage record that lacks a target of this config (e.g. copied from another run's
+    # folder) is refused by name instead of failing with a KeyError at the end.
+    record = tmp_path / "stages" / "expert_zero_shot.json"
+    stored = json.loads(record.read_text())
+    del stored["result"]["slippery_slope"]
+    record.write_text(json.dumps(stored))
+    partial = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
+    assert partial.returncode != 0 and "has no result for ['slippery_slope']" in partial.stderr
 
 
 def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert):

@@ -485,6 +485,11 @@ def run(cfg: Config) -> dict:
     expert = stage("expert", lambda d: expert_stage(cfg, d))
     expert_zero_shot = stage("expert_zero_shot",
                              lambda d: expert_zero_shot_stage(cfg, expert["path"]))
+    missing = [t for t in cfg.expert_targets if t not in expert_zero_shot]
+    if missing:  # e.g. a record copied in from a run with other targets
+        raise ValueError(f"{out / 'stages' / 'expert_zero_shot.json'} has no result for "
+                         f"{missing} (it holds {sorted(expert_zero_shot)}); delete it to "
+                         "re-evaluate the expert on every target of this config")
     dataset = stage("dataset", lambda d: dataset_stage(cfg, expert["path"], d))
     pretrained = stage("pretrain", lambda d: pretrain_stage(cfg, dataset["path"],
                                                             expert["path"], d, logger))
