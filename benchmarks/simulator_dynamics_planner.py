@@ -11,6 +11,8 @@ value and prior proposals are the pretrained heads on the encoded history.
     python benchmarks/simulator_dynamics_planner.py --run RUN --domains slippery_slope
     python benchmarks/simulator_dynamics_planner.py --run RUN --domains sim slippery_slope \\
         --episodes 16 --variant recipe: --variant "H20:horizon=20"
+    python benchmarks/simulator_dynamics_planner.py --run RUN --episodes 8 \\
+        --ranking finetuned=RUN/stages/round_4/simdist.pt pretrained=pretrained
 
 Compare with ``benchmarks/planner_variants.py --run RUN`` (the learned dynamics, pretrained
 or ``--weights`` of a finetuning round) on the same seeds. Costs ~B x (proposals +
@@ -48,6 +50,12 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=None, help="episode steps (default: the run's)")
     parser.add_argument("--env-seed", type=int, default=None,
                         help="seed of the evaluation worlds (default: the recipe's, seed + 10000)")
+    parser.add_argument("--ranking", nargs="+", default=None, metavar="NAME=WEIGHTS",
+                        help="instead of evaluating: how well each world model (NAME=path of "
+                             "its weights, or NAME=pretrained) ranks candidate plans against "
+                             "the simulator (see ranking())")
+    parser.add_argument("--ranking-noise", type=float, default=0.3,
+                        help="std of the candidates around the plan (the prior's noise)")
     parser.add_argument("--save-rollouts", default=None, metavar="DIR",
                         help="write each rollout (the recipe's target-data keys) to "
                              "DIR/<variant>_<domain> as a memmap folder")
@@ -61,6 +69,11 @@ def main(argv=None):
     cfg = dataclasses.replace(cfg, episodes=args.episodes, **({"episode_steps": args.steps} if args.steps else {}))
     pretrained = json.loads((run / "stages" / "pretrain.json").read_text())["result"]
     agent = recipe.load_agent(cfg, pretrained)
+    if args.ranking:
+        for domain in args.domains:
+            ranking(cfg, pretrained, dict(item.split("=", 1) for item in args.ranking), domain,
+                    args.ranking_noise, args.episodes, args.env_seed)
+        return
     variants = [parse_variant(v) for v in (args.variant or ["recipe:"])]
     print(f"run {run} (seed {cfg.seed}), {cfg.episodes} episodes of {cfg.episode_steps} "
           "steps, simulator dynamics + pretrained heads")
@@ -86,6 +99,65 @@ def main(argv=None):
             print(f"| {name} {overrides or ''} | {domain} | {100 * stats['mean_fraction']:.0f}% "
                   f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) | "
                   f"{time.perf_counter() - start:.0f} |", flush=True)
+
+
+def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, worlds: int,
+            env_seed: int | None, checkpoints=range(19, 200, 20), candidates: int = 64):
+    """Does a learned model rank the planner's candidates as the true dynamics do?
+
+    The first model's planner drives ``worlds`` episodes; every 20 steps, ``candidates``
+    action sequences (its plan + Gaussian ``noise``, the prior's trust region) are scored
+    by the simulator (:class:`SimulatorPlanningPolicy`'s planner, same heads) and by each
+    model (same score: discounted predicted rewards + terminal value). Prints the mean
+    Spearman correlation of the two scores per state, and where the model's best
+    candidate lies on the true scale: 0 = the candidates' mean, 1 = the truly best.
+    """
+    from scipy import stats
+    from torchrl.envs.utils import step_mdp
+    from simdist.modules import LatentMPPIPlanner
+
+    agents = {k: recipe.load_agent(cfg, pretrained, None if v == "pretrained" else v)
+              for k, v in weights.items()}
+    first = next(iter(agents.values()))
+    env = locomotion_env(get_target(domain), worlds, cfg.episode_steps,
+                         cfg.seed + 20_000 if env_seed is None else env_seed, task=cfg.task,
+                         primers=[first.make_primer(0)])
+    low, high = env.action_spec.space.low[0], env.action_spec.space.high[0]
+    driver = first.policy(low, high, cfg.planner(), seed=cfg.seed)
+    truth = SimulatorPlanningPolicy(first, env.base_env.sims, cfg.planner(), low, high, cfg.seed)
+    planners = {k: LatentMPPIPlanner.from_world_model(a.world_model, cfg.planner())
+                for k, a in agents.items()}
+    generator = torch.Generator().manual_seed(cfg.seed)
+    rho = {k: [] for k in agents}
+    pick = {k: [] for k in agents}
+    td = env.reset()
+    with torch.no_grad():
+        for t in range(max(checkpoints) + 1):
+            td = driver(td)
+            if t in checkpoints:
+                history, mean = td["next", "simdist", "history"], td["planner", "mean"]
+                actions = mean[:, None] + noise * torch.randn(worlds, candidates, *mean.shape[1:],
+                                                              generator=generator)
+                actions = torch.maximum(torch.minimum(actions, high), low)
+                truth.dynamics.sync()
+                true = truth.planner._evaluate(truth.dynamics.latent(history),
+                                               actions.double())[0].float()
+                for k, agent in agents.items():
+                    latent = agent.world_model.encode(history).reshape(worlds, -1)
+                    predicted = planners[k]._evaluate(latent, actions)[0]
+                    for b in range(worlds):
+                        rho[k].append(stats.spearmanr(true[b], predicted[b]).statistic)
+                        best = true[b, predicted[b].argmax()]
+                        span = (true[b].max() - true[b].mean()).clamp_min(1e-9)
+                        pick[k].append(((best - true[b].mean()) / span).item())
+            td = step_mdp(env.step(td), keep_other=True)
+    env.close()
+    print(f"| model | domain | Spearman (true vs predicted score) | model's pick (0 mean, 1 best) |")
+    print("| --- | --- | --- | --- |")
+    for k in agents:
+        r, q = torch.tensor(rho[k]), torch.tensor(pick[k])
+        print(f"| {k} | {domain} | {r.nanmean():.2f} +- {r[~r.isnan()].std():.2f} | "
+              f"{q.mean():.2f} +- {q.std():.2f} (n={len(q)}) |", flush=True)
 
 
 def parse_variant(text: str) -> tuple[str, dict]:
