@@ -1,0 +1,147 @@
+"""Which target data would make dynamics-only finetuning work? (not a speed benchmark)
+
+Works on a finished `recipes/simdist_quadruped.py` run (``--run``). Two steps:
+
+``collect``: target episodes from the run's planner (pretrained or ``--weights``) with
+Gaussian noise of std ``--noise`` added to every executed action (0: the recipe's own
+collection), written as a memmap folder the recipe's finetuning reads.
+
+``finetune``: the pretrained world model's dynamics finetuned (the recipe's loss, lr and
+batch) on the union of ``--train`` folders (recipe round data, ``collect`` output, or
+``simulator_dynamics_planner.py --save-rollouts`` output) for ``--updates`` updates; prints
+the latent prediction error relative to the latent's variance (steps 1..5) on each
+``--probe`` folder before and after, evaluates the finetuned planner on the recipe's
+evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_planner.py
+--ranking``.
+
+    python benchmarks/finetune_data.py collect --run RUN --weights RUN/stages/round_4/simdist.pt \\
+        --noise 0.3 --episodes 96 --out /tmp/noisy
+    python benchmarks/finetune_data.py finetune --run RUN --train /tmp/noisy --updates 4000 \\
+        --probe /tmp/climbing --save /tmp/noisy.pt
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import simdist  # noqa: F401  (headless GL set-up before dm_control)
+import torch
+
+from simdist.envs import get_target
+from simdist.objectives.simdist_pretrain import latent_prediction_error
+from simdist.pipelines import as_slices, locomotion_env, rollout
+from simdist.recipes import simdist_quadruped as recipe
+from simdist.utils import load_memmap, save_memmap
+
+
+def load_run(run: Path, **overrides):
+    cfg_dict = json.loads((run / "config.json").read_text())
+    cfg_dict = cfg_dict.get("config", cfg_dict)
+    fields = {f.name for f in dataclasses.fields(recipe.Config)}
+    cfg = recipe.Config(**{k: v for k, v in cfg_dict.items() if k in fields})
+    cfg = dataclasses.replace(cfg, **overrides)
+    pretrained = json.loads((run / "stages" / "pretrain.json").read_text())["result"]
+    return cfg, pretrained
+
+
+class NoisyPolicy(torch.nn.Module):
+    """A policy's action plus Gaussian noise, clamped to the action bounds."""
+
+    def __init__(self, policy, std: float, low, high, generator):
+        super().__init__()
+        self.policy, self.std, self.low, self.high = policy, std, low, high
+        self.generator = generator
+
+    def forward(self, td):
+        td = self.policy(td)
+        action = td["action"] + self.std * torch.randn(td["action"].shape,
+                                                       generator=self.generator)
+        return td.set("action", torch.maximum(torch.minimum(action, self.high), self.low))
+
+
+def collect(args) -> None:
+    cfg, pretrained = load_run(Path(args.run))
+    agent = recipe.load_agent(cfg, pretrained, args.weights)
+    generator = torch.Generator().manual_seed(args.noise_seed)
+    batches = []
+    for start in range(0, args.episodes, 32):  # 32 worlds stepped at once
+        n = min(32, args.episodes - start)
+        env = locomotion_env(get_target(cfg.target), n, cfg.episode_steps, args.seed + start,
+                             task=cfg.task, primers=[agent.make_primer(0)])
+        low, high = env.action_spec.space.low[0], env.action_spec.space.high[0]
+        planner = agent.policy(low, high, cfg.planner(), seed=start)
+
+        noisy = NoisyPolicy(planner, args.noise, low, high, generator)
+        td = rollout(env, noisy, cfg.episode_steps, desc=f"collect {start}..{start + n}")
+        env.close()
+        print(f"episodes {start}..{start + n}: forward progress "
+              f"{td['next', 'forward_progress'][:, -1].mean():.2f} m", flush=True)
+        batches.append(td.select(*recipe.TARGET_KEYS))
+    save_memmap(torch.cat(batches, 0), Path(args.out))
+
+
+def finetune(args) -> None:
+    overrides = {"finetune_lr": args.lr} if args.lr else {}
+    cfg, pretrained = load_run(Path(args.run), **overrides)
+    torch.manual_seed(args.seed)
+    agent = recipe.load_agent(cfg, pretrained, args.weights)
+
+    def report(tag):
+        with torch.no_grad():
+            for path in args.probe:
+                error = latent_prediction_error(agent.world_model, load_memmap(Path(path))[:, :],
+                                                cfg.model_horizon)
+                print(f"{tag}: relative latent prediction error on {path}: "
+                      + " ".join(f"{e:.3f}" for e in error), flush=True)
+
+    report("before")
+    data = torch.cat([load_memmap(Path(p))[:, :].select(*recipe.TARGET_KEYS)
+                      for p in args.train], 0)
+    buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+    start = time.perf_counter()
+    for i in range(args.updates):
+        metrics = agent.finetune_update(buffer.sample().reshape(-1, cfg.slice_len))
+        if i % 1000 == 0 or i == args.updates - 1:
+            print(f"update {i}: consistency {metrics['loss_consistency']:.4f}", flush=True)
+    print(f"{args.updates} updates on {data.numel()} steps in {time.perf_counter() - start:.0f} s")
+    report("after")
+    if args.save:
+        torch.save(agent.world_model.state_dict(), args.save)
+    stats, _ = recipe.evaluate_planner(cfg, agent, cfg.target)
+    low, high = stats["ci_fraction"]
+    print(f"planner in {cfg.target}: {100 * stats['mean_fraction']:.0f}% [{100 * low:.0f}, "
+          f"{100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) of the commanded distance")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="step", required=True)
+    c = sub.add_parser("collect", help="target episodes from the planner + action noise")
+    c.add_argument("--run", required=True)
+    c.add_argument("--weights", default=None, help="world-model weights (default: pretrained)")
+    c.add_argument("--noise", type=float, default=0.0)
+    c.add_argument("--episodes", type=int, default=96)
+    c.add_argument("--seed", type=int, default=7000, help="seed of the worlds")
+    c.add_argument("--noise-seed", type=int, default=1)
+    c.add_argument("--out", required=True)
+    f = sub.add_parser("finetune", help="dynamics-only finetuning on given data, then evaluate")
+    f.add_argument("--run", required=True)
+    f.add_argument("--weights", default=None, help="start from these weights (default: pretrained)")
+    f.add_argument("--train", nargs="+", required=True, help="memmap folders of target data")
+    f.add_argument("--updates", type=int, default=4000)
+    f.add_argument("--lr", type=float, default=None, help="default: the run's finetune_lr")
+    f.add_argument("--probe", nargs="*", default=[], help="folders to measure prediction error on")
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--save", default=None)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    (collect if args.step == "collect" else finetune)(args)
+
+
+if __name__ == "__main__":
+    main()
