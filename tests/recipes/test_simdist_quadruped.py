@@ -124,6 +124,15 @@ def test_help_lists_every_config_field_with_its_default():
     assert "(default: 2)" in tiny  # a preset's values become the defaults shown
 
 
+def test_model_history_sets_the_encoders_window():
+    from simdist.recipes.simdist_quadruped import Config, new_agent
+    agent = new_agent(Config(model_size="tiny", model_history=6), obs_dim=10, action_dim=3)
+    assert agent.world_model.encoder.history == 6
+    assert agent.make_primer(0).primers["simdist", "history"].shape == (6, 10)
+    default = new_agent(Config(model_size="tiny"), obs_dim=10, action_dim=3)
+    assert default.world_model.encoder.history == 2  # the size's own
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--episodes", "0"], "episodes: must be > 0"),
     (["--budgets-min", "2", "1"], "budgets_min: must be positive and increasing"),
@@ -131,6 +140,7 @@ def test_help_lists_every_config_field_with_its_default():
     (["--model-size", "huge"], "model_size: unknown size 'huge'"),
     (["--target", "unseen_scenes"], "change only what a camera"),
     (["--slice-len", "2"], "needs model_horizon < slice_len"),
+    (["--model-history", "-1"], "model_history: must be >= 0"),
 ])
 def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message):
     proc = _run(*flags, "--output-dir", tmp_path / "out")

@@ -92,6 +92,9 @@ class Config:
     dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
     dataset_workers: int = 1  # processes generating shards
     model_size: str = "small"  # world-model size (simdist.modules.SIMDIST_SIZES)
+    # observation steps the encoder reads (0: the size's own, 4 for "small"; the SimDist
+    # reference: 25)
+    model_history: int = 0
     model_horizon: int = 5  # steps of latent rollout in the pretraining loss
     pretrain_updates: int = 4000  # world-model updates on the simulation dataset
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
@@ -153,7 +156,7 @@ class Config:
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
                        "finetune_lr", "sac_batch_size", "pretrain_updates")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
-                       allow_zero=True)
+                       "model_history", allow_zero=True)
         check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
               f"needs model_horizon < slice_len <= episode_steps, got {self.model_horizon}, "
               f"{self.slice_len}, {self.episode_steps}")
@@ -266,7 +269,8 @@ def heldout_prediction_error(cfg: Config, agent: SimDistAgent, expert_path: str)
 
 
 def new_agent(cfg: Config, obs_dim: int, action_dim: int) -> SimDistAgent:
-    wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size)
+    overrides = {"history": cfg.model_history} if cfg.model_history else {}
+    wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
                                           value_weight=cfg.value_weight),
