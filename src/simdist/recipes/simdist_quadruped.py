@@ -88,7 +88,12 @@ class Config:
     # several seeds: each runs into <output_dir>/seed_<N> and one table aggregates them
     # (empty: a single run of --seed into <output_dir>)
     seeds: list[int] = field(default_factory=list)
-    dataset_episodes: int = 768  # perturbed-expert episodes in the pretraining dataset
+    # perturbed-expert episodes in the pretraining dataset, and world-model updates on it.
+    # 1536 + 12000 (was 768 + 4000) ranks the planner's candidates better (Spearman .13 ->
+    # .22 against the simulator) and lifts SimDist on slippery_slope from +3% to +18% of the
+    # commanded distance at 8 min (3 seeds, disjoint CIs; benchmarks/README.md, "What would
+    # perfect dynamics give?"), for ~7 more minutes on 2 cores.
+    dataset_episodes: int = 1536
     dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
     dataset_workers: int = 1  # processes generating shards
     model_size: str = "small"  # world-model size (simdist.modules.SIMDIST_SIZES)
@@ -96,7 +101,7 @@ class Config:
     # reference: 25)
     model_history: int = 0
     model_horizon: int = 5  # steps of latent rollout in the pretraining loss
-    pretrain_updates: int = 4000  # world-model updates on the simulation dataset
+    pretrain_updates: int = 12000
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
     # Value labels are discounted returns, up to 1/(1-gamma) = 100 rewards: weighting their
     # squared error by ~(1-gamma)^2 regresses V/100 at weight 1 (errors of 0.1 in V/100
