@@ -23,8 +23,6 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -36,16 +34,6 @@ from simdist.objectives.simdist_pretrain import latent_prediction_error
 from simdist.pipelines import as_slices, locomotion_env, rollout
 from simdist.recipes import simdist_quadruped as recipe
 from simdist.utils import load_memmap, save_memmap
-
-
-def load_run(run: Path, **overrides):
-    cfg_dict = json.loads((run / "config.json").read_text())
-    cfg_dict = cfg_dict.get("config", cfg_dict)
-    fields = {f.name for f in dataclasses.fields(recipe.Config)}
-    cfg = recipe.Config(**{k: v for k, v in cfg_dict.items() if k in fields})
-    cfg = dataclasses.replace(cfg, **overrides)
-    pretrained = json.loads((run / "stages" / "pretrain.json").read_text())["result"]
-    return cfg, pretrained
 
 
 class NoisyPolicy(torch.nn.Module):
@@ -64,7 +52,7 @@ class NoisyPolicy(torch.nn.Module):
 
 
 def collect(args) -> None:
-    cfg, pretrained = load_run(Path(args.run))
+    cfg, pretrained = recipe.load_finished_run(Path(args.run))
     agent = recipe.load_agent(cfg, pretrained, args.weights)
     generator = torch.Generator().manual_seed(args.noise_seed)
     batches = []
@@ -86,7 +74,7 @@ def collect(args) -> None:
 
 def finetune(args) -> None:
     overrides = {"finetune_lr": args.lr} if args.lr else {}
-    cfg, pretrained = load_run(Path(args.run), **overrides)
+    cfg, pretrained = recipe.load_finished_run(Path(args.run), **overrides)
     torch.manual_seed(args.seed)
     agent = recipe.load_agent(cfg, pretrained, args.weights)
 

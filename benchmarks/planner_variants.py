@@ -84,13 +84,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     run = Path(args.run)
-    cfg_dict = json.loads((run / "config.json").read_text())
-    cfg_dict = cfg_dict.get("config", cfg_dict)
-    fields = {f.name for f in dataclasses.fields(recipe.Config)}
-    cfg = recipe.Config(**{k: v for k, v in cfg_dict.items() if k in fields})
-    if args.episodes:
-        cfg = dataclasses.replace(cfg, episodes=args.episodes)
-    pretrained = json.loads((run / "stages" / "pretrain.json").read_text())["result"]
+    cfg, pretrained = recipe.load_finished_run(
+        run, **({"episodes": args.episodes} if args.episodes else {}))
     agent = recipe.load_agent(cfg, pretrained, args.weights)
     variants = [parse_variant(v) for v in (args.variant or ["recipe:"])]
     if args.prior:

@@ -62,12 +62,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     run = Path(args.run)
-    cfg_dict = json.loads((run / "config.json").read_text())
-    cfg_dict = cfg_dict.get("config", cfg_dict)
-    fields = {f.name for f in dataclasses.fields(recipe.Config)}
-    cfg = recipe.Config(**{k: v for k, v in cfg_dict.items() if k in fields})
-    cfg = dataclasses.replace(cfg, episodes=args.episodes, **({"episode_steps": args.steps} if args.steps else {}))
-    pretrained = json.loads((run / "stages" / "pretrain.json").read_text())["result"]
+    cfg, pretrained = recipe.load_finished_run(
+        run, episodes=args.episodes, **({"episode_steps": args.steps} if args.steps else {}))
     agent = recipe.load_agent(cfg, pretrained)
     if args.ranking:
         for domain in args.domains:

@@ -54,6 +54,7 @@ from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
 from simdist.utils.cli import check, check_builds, check_positive, parse_config
+from simdist.utils.stages import read_json
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -317,6 +318,18 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
             "first": first, "last": last,
             "term_shares_first": term_shares(first), "term_shares_last": term_shares(last),
             "heldout_prediction_error_rel": heldout_prediction_error(cfg, agent, expert_path)}
+
+
+def load_finished_run(run: str | Path, **overrides) -> tuple[Config, dict]:
+    """The config (with ``overrides``) and the pretrain stage's result of a run folder, for
+    tools that reuse a finished run's models (the benchmarks)."""
+    run = Path(run)
+    stored = read_json(run / "config.json", "recipe config")
+    stored = stored.get("config", stored)
+    fields = {f.name for f in dataclasses.fields(Config)}
+    cfg = dataclasses.replace(Config(**{k: v for k, v in stored.items() if k in fields}),
+                              **overrides)
+    return cfg, read_json(run / "stages" / "pretrain.json", "record of stage 'pretrain'")["result"]
 
 
 def load_agent(cfg: Config, pretrained: dict, path: str | None = None) -> SimDistAgent:
