@@ -24,13 +24,15 @@ def _run(*args, timeout=300):
 
 
 def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert):
-    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
+    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path,
+                "--threads", 1)
     assert proc.returncode == 0, proc.stderr
     stages = ["expert", "expert_zero_shot", "dataset", "pretrain", "zero_shot", "round_1",
               "round_2"]
     for stage in stages:
         assert (tmp_path / "stages" / f"{stage}.json").exists(), stage
     results = json.loads((tmp_path / "results.json").read_text())
+    assert results["torch_threads"] == 1
     assert set(results["expert_zero_shot"]) == {"sim", "slippery_slope"}
     assert set(results["planner_zero_shot"]) == {"sim", "slippery_slope"}
     assert results["dataset"]["transitions"] == 4 * 20
@@ -61,6 +63,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
         assert (tmp_path / "logs" / "scalars" / f"{scalar}.csv").exists(), scalar
     assert (tmp_path / "training_curves.png").stat().st_size > 0
 
+    # a rerun with torch's default thread count reuses every stage (threads are runtime)
     again = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
     assert again.returncode == 0 and again.stdout.count("already done") == len(stages) + 2
     assert json.loads((tmp_path / "results.json").read_text())["curves"] == curves
@@ -141,6 +144,7 @@ def test_model_history_sets_the_encoders_window():
     (["--target", "unseen_scenes"], "change only what a camera"),
     (["--slice-len", "2"], "needs model_horizon < slice_len"),
     (["--model-history", "-1"], "model_history: must be >= 0"),
+    (["--threads", "-1"], "threads: must be >= 0"),
 ])
 def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message):
     proc = _run(*flags, "--output-dir", tmp_path / "out")

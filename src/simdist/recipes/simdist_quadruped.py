@@ -147,6 +147,11 @@ class Config:
     # scalar logs of every training update under <output_dir>/logs: csv, tensorboard
     # (needs tensorboard), wandb (offline; needs wandb) or none. Not part of the results.
     logger: str = "csv"
+    # torch CPU threads of this process (0: torch's default, one per core). Figures depend
+    # on it: PyTorch splits float reductions by thread, so the same seed trains a slightly
+    # different model with 1 and 2 threads (results.json records the count used). Not part
+    # of the results: a run may resume with another count.
+    threads: int = 0
 
     def __post_init__(self):
         check(self.task in TASKS, "task", f"unknown task {self.task!r}; valid: {sorted(TASKS)}")
@@ -162,7 +167,7 @@ class Config:
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
                        "finetune_lr", "sac_batch_size", "pretrain_updates")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
-                       "model_history", allow_zero=True)
+                       "model_history", "threads", allow_zero=True)
         check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
               f"needs model_horizon < slice_len <= episode_steps, got {self.model_horizon}, "
               f"{self.slice_len}, {self.episode_steps}")
@@ -493,9 +498,11 @@ def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out
 def run(cfg: Config) -> dict:
     """Every stage of one seed into ``cfg.output_dir``; returns the results it wrote."""
     out = Path(cfg.output_dir)
-    # finished stages are skipped when rerun; the device may differ from the first run's
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    # finished stages are skipped when rerun; device and threads may differ from the first run's
     runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
-                         runtime_keys=("device", "logger"))
+                         runtime_keys=("device", "logger", "threads"))
     logger = make_logger(cfg.logger, out)
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
@@ -542,7 +549,8 @@ def run(cfg: Config) -> dict:
     summary = {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
                "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
                "planner_zero_shot": planner_zero_shot, "probe": probe,
-               "recordings": recordings, "curves": results, "timings_s": runner.timings}
+               "recordings": recordings, "curves": results, "timings_s": runner.timings,
+               "torch_threads": torch.get_num_threads()}
     write_json_atomic(out / "results.json", summary)
     plot_results(results, get_target(cfg.target).name, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
