@@ -133,10 +133,9 @@ class Config:
     planner_policy_fraction: float = 0.9
     planner_policy_noise: float = 0.3  # latent MPPI: std of the noise on the prior's proposals
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
-    # SimDist reference: 1). Measured on the pretrained models of seeds 0-2, 32 episodes
-    # (benchmarks/README.md): laggy 89/82/91% -> 115/102/109% of the commanded distance,
-    # sim unchanged (97/105/98% -> 99/104/96%).
-    # Off by default until the README tables are re-measured with it.
+    # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
+    # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
+    # ones (82/95/75% -> 93/61/104%; benchmarks/README.md, "One step of latency compensation").
     planner_latency_compensation: int = 0
     # target rounds: cumulative minutes of 50 Hz target data after each round
     budgets_min: list[float] = field(default_factory=lambda: [1.0, 2.0, 4.0, 8.0])
