@@ -93,7 +93,7 @@ class Config:
     # 1536 + 12000 (was 768 + 4000) ranks the planner's candidates better (Spearman .13 ->
     # .22 against the simulator) and lifts SimDist on slippery_slope from +3% to +18% of the
     # commanded distance at 8 min (3 seeds, disjoint CIs; benchmarks/README.md, "What would
-    # perfect dynamics give?"), for ~7 more minutes on 2 cores.
+    # perfect dynamics give?"); the whole default run measured 24.5 min on 2 quiet cores).
     dataset_episodes: int = 1536
     dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
     dataset_workers: int = 1  # processes generating shards
