@@ -6,6 +6,11 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
 - ``state``: the same distillation (Eq. 3 + Eq. 4, same budget) but the student RSSM
   reads the privileged *state* instead of pixels, evaluated on state: what distillation
   gives with perfect perception.
+- ``positions``: as ``state``, but the student reads only some state dimensions
+  (``--positions``, default the cartpole's x, cos, sin: what one image can show), exactly:
+  a student with perfect perception of positions, which must infer the velocities itself.
+  ``--init-rssm`` starts its RSSM as the teacher's; ``--slices`` and ``--lr`` change the
+  student's batch and learning rate.
 - ``pixels``: the recipe's student again, at other update budgets.
 - ``init``: the pixel student with its RSSM (all but the encoder-facing layers whose
   shapes differ) initialised from the teacher's weights.
@@ -30,7 +35,10 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   ``train_camera`` randomisation: a camera-pose draw per image, so one teacher serves both
   arms). ``--frames 2`` reads each recorded image together with the one a control step
   earlier (the shared encoder's features and their change, one shift for both): can two
-  frames give the velocities one image cannot?
+  frames give the velocities one image cannot? For cartpole, one frame, it prints the RMSE per
+  state dimension on the *balancing* test states (pole within 0.3 rad of upright, cart in
+  view; ``balancing_rmse_*`` next to their ``balancing_std``): most of D is a fallen pole
+  or a cart out of view, so R^2 over all of D hides the precision a balancing policy needs.
 
 ``pixels`` prints, after each budget, the held-out return and the student's latent R^2
 (and, with ``--eval-scenes heldout_nocam training``, the return on held-out textures
@@ -47,6 +55,8 @@ Every figure in the README's TWIST "honest reading" comes from this script.
 Usage:
     python recipes/twist_dmc.py                                  # first, the recipe
     python benchmarks/twist_diagnosis.py state --updates 300,900
+    python benchmarks/twist_diagnosis.py positions --updates 300,900 --episodes 10 \
+        [--lr 1e-3 --slices 16] [--init-rssm]
     python benchmarks/twist_diagnosis.py pixels --updates 300,900 [--lr 1e-3]
     python benchmarks/twist_diagnosis.py init --updates 300,600
     python benchmarks/twist_diagnosis.py probe --updates 1500 --batch 400
@@ -91,16 +101,42 @@ def teacher_stage(outputs: Path, task: str, seed: int) -> dict:
     return json.loads(path.read_text())["result"]
 
 
+class SelectDims(torch.nn.Module):
+    """Keeps the given dimensions of the last axis (a student that sees part of the state)."""
+
+    def __init__(self, dims: list[int]):
+        super().__init__()
+        self.register_buffer("dims", torch.tensor(dims))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x.index_select(-1, self.dims)
+
+
+def copy_rssm(teacher, student) -> None:
+    """The student RSSM's tensors that have the teacher's shapes start as the teacher's."""
+    own = student.rssm.state_dict()
+    same = {k: v for k, v in teacher.world_model.rssm.state_dict().items()
+            if own[k].shape == v.shape}
+    student.rssm.load_state_dict(same, strict=False)
+    print(f"copied {len(same)}/{len(own)} RSSM tensors from the teacher", flush=True)
+
+
 def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
-                 standardise_belief: bool = False) -> TwistStudent:
+                 standardise_belief: bool = False, positions: list[int] | None = None,
+                 init_rssm: bool = False) -> TwistStudent:
     overrides = {} if lr is None else {"lr": lr}
     if standardise_belief:
         overrides["standardise_belief"] = True
-    if variant == "state":
+    if variant in ("state", "positions"):
         state_dim, action_dim = recipe.state_dim(task)
-        student = DreamerWorldModel.teacher(state_dim, action_dim, cfg.model_size)
+        dims = list(range(state_dim)) if variant == "state" else positions
+        student = DreamerWorldModel.teacher(len(dims), action_dim, cfg.model_size)
         student.decoder = student.reward_head = None  # a student learns neither
+        if variant == "positions":  # reads only these dimensions of the state
+            student.encoder = torch.nn.Sequential(SelectDims(dims), student.encoder)
         overrides["shift_pad"] = 0  # a state vector is not an image
+        if init_rssm:
+            copy_rssm(teacher, student)
         return TwistStudent(teacher, student, recipe.twist_config(cfg, overrides),
                             pixels_key=("next", "state"))
     twist = recipe.new_student(cfg, task, teacher, overrides)
@@ -111,12 +147,8 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
         twist.student.encoder = torch.nn.Sequential(encoder, head)
         twist.student.rssm.load_state_dict(teacher.world_model.rssm.state_dict())
         twist.optim = torch.optim.Adam(twist.student.parameters(), lr=twist.config.lr)
-    if variant == "init":
-        own = twist.student.rssm.state_dict()
-        same = {k: v for k, v in teacher.world_model.rssm.state_dict().items()
-                if own[k].shape == v.shape}
-        twist.student.rssm.load_state_dict(same, strict=False)
-        print(f"copied {len(same)}/{len(own)} RSSM tensors from the teacher", flush=True)
+    if variant == "init" or init_rssm:
+        copy_rssm(teacher, twist.student)
     return twist
 
 
@@ -124,7 +156,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
     torch.manual_seed(args.seed)
     teacher = recipe.load_teacher(cfg, args.task, teacher_result)
     twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
-                         args.standardise_belief)
+                         args.standardise_belief, args.positions, args.init_rssm)
     recorded = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
     episodes = recorded
     if args.train_camera:  # D's states re-rendered under the recipe's train_camera DR
@@ -135,7 +167,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
         for e, x in zip(episodes, images):
             e.set(("next", "pixels"), x)
     replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
-                           cfg.student_slices)
+                           args.slices or cfg.student_slices)
     for episode in episodes:
         replay.add(episode)
     probe_replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len, 128)
@@ -155,7 +187,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
                                   stage / "student.pt", every=100,
                                   desc=args.variant) if updates else []
         seconds = time.perf_counter() - start
-        if args.variant == "state":
+        if args.variant in ("state", "positions"):
             policy = DreamerPolicy(twist.student, teacher.actor, "state", explore=False)
             result = evaluate_returns(args.task, policy, twist.make_primer(),
                                       args.seed + 10_000, args.episodes, cfg.eval_steps,
@@ -165,16 +197,17 @@ def distil(args, cfg, teacher_result: dict) -> None:
             result = recipe.evaluate(cfg_eval, args.task, args.seed, twist.policy(),
                                      twist.make_primer(), pixels=True)
         scenes = {}  # the same student on other scenes: which part of the shift costs return
-        for name in args.eval_scenes if args.variant != "state" else []:
+        for name in args.eval_scenes if args.variant not in ("state", "positions") else []:
             scene = evaluate_returns(args.task, twist.policy(), twist.make_primer(),
                                      args.seed + 10_000, args.episodes, cfg.eval_steps, True,
                                      EVAL_SCENES[name])
             scenes[name] = {"mean": scene["mean"], "std": scene["std"]}
         extra = {"scenes": scenes} if scenes else {}
-        if args.variant != "state":
+        if args.variant not in ("state", "positions"):
             extra.update(latent_r2(twist, probe_batch))
         print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
-                          "lr": args.lr, "mean": result["mean"], "std": result["std"], **extra,
+                          "lr": args.lr, "slices": args.slices or cfg.student_slices,
+                          "init_rssm": args.init_rssm or args.variant == "init", "mean": result["mean"], "std": result["std"], **extra,
                           "train_s": round(seconds, 1),
                           "last": mean_metrics(history, 50) if history else None}),
               flush=True)
@@ -294,6 +327,19 @@ def noisy(args, cfg, teacher_result: dict) -> None:
         encoder.forward = clean
 
 
+#: cartpole states a balancing policy visits: pole within this angle (rad) of upright ...
+BALANCING_ANGLE = 0.3
+#: ... and the cart within this distance (m) of the centre (the fixed camera's view)
+BALANCING_CART = 1.5
+
+
+def balancing(states: torch.Tensor) -> torch.Tensor:
+    """Mask of cartpole states ``(x, cos, sin, v, omega)`` with the pole near upright and
+    the cart in view."""
+    angle = torch.atan2(states[..., 2], states[..., 1])
+    return (angle.abs() < BALANCING_ANGLE) & (states[..., 0].abs() < BALANCING_CART)
+
+
 def probe_encoder(args, cfg) -> torch.nn.Module:
     size = DreamerWorldModel.student(1, cfg.model_size).encoder
     depth = args.depth or size.net[0].out_channels
@@ -369,14 +415,24 @@ def probe(args, cfg, teacher_result: dict) -> None:
     optim = torch.optim.Adam(params, lr=args.lr or 3e-4)
     mean, std = states[train].mean(0), states[train].std(0)
 
-    def r2(x, y) -> list[float]:
+    def predict(x) -> torch.Tensor:  # the state read from images, in the state's units
         encoder.eval()
         with torch.no_grad():
-            target = (y - mean) / std
-            error = torch.cat([head(encode(x[i:i + 500])) for i in range(0, len(x), 500)])
-            error = (error - target).pow(2).mean(0)
+            out = torch.cat([head(encode(x[i:i + 500])) for i in range(0, len(x), 500)])
         encoder.train()
-        return [round(v, 2) for v in (1 - error / target.var(0)).tolist()]
+        return out * std + mean
+
+    def r2(x, y) -> list[float]:
+        error = (predict(x) - y).pow(2).mean(0)
+        return [round(v, 2) for v in (1 - error / y.var(0)).tolist()]
+
+    def balancing_rmse(x, y) -> list[float]:
+        """RMSE per state dimension on the test states where the pole is within
+        BALANCING_ANGLE of upright and the cart within the camera's view: the states a
+        balancing policy visits (most of D is a fallen pole or a cart out of view, where
+        R^2 over all of D says little about the precision a controller needs)."""
+        keep = balancing(y)
+        return [round(v, 4) for v in (predict(x[keep]) - y[keep]).pow(2).mean(0).sqrt().tolist()]
 
     start = time.perf_counter()
     n = len(train)
@@ -399,13 +455,22 @@ def probe(args, cfg, teacher_result: dict) -> None:
                                      else pairs(train[:len(test)]), states[train[:len(test)]])}
             for name, images_heldout in heldout.items():
                 record[f"r2_{name}"] = r2(images_heldout, states[test])
+            if frames == 1 and args.task.startswith("cartpole"):
+                record["balancing_states"] = int(balancing(states[test]).sum())
+                record["balancing_std"] = [round(v, 4) for v in
+                                           states[test][balancing(states[test])].std(0).tolist()]
+                record["balancing_rmse_test"] = balancing_rmse(pixels[test], states[test])
+                for name, images_heldout in heldout.items():
+                    record[f"balancing_rmse_{name}"] = balancing_rmse(images_heldout,
+                                                                      states[test])
             record["seconds"] = round(time.perf_counter() - start, 1)
             print(json.dumps(record), flush=True)
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("variant", choices=["state", "pixels", "init", "warm", "noisy", "probe"])
+    parser.add_argument("variant", choices=["state", "positions", "pixels", "init", "warm",
+                                            "noisy", "probe"])
     parser.add_argument("--outputs", type=Path, default=Path("outputs/twist_dmc"))
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS))
     parser.add_argument("--task", default="cartpole-balance")
@@ -413,6 +478,15 @@ def main():
     parser.add_argument("--updates", default="300,900",
                         type=lambda s: sorted(int(x) for x in s.split(",")))
     parser.add_argument("--lr", type=float, default=None, help="default: the recipe's")
+    parser.add_argument("--slices", type=int, default=None,
+                        help="student slices per update (default: the recipe's)")
+    parser.add_argument("--init-rssm", action="store_true",
+                        help="state/positions/pixels: the student RSSM's tensors of the "
+                             "teacher's shapes start as the teacher's")
+    parser.add_argument("--positions", default="0,1,2",
+                        type=lambda s: [int(x) for x in s.split(",")],
+                        help="positions: the state dimensions the student reads (cartpole: "
+                             "x, cos, sin)")
     parser.add_argument("--episodes", type=int, default=6, help="held-out evaluation episodes")
     parser.add_argument("--batch", type=int, default=400, help="probe: images per update")
     parser.add_argument("--depth", type=int, default=None,
