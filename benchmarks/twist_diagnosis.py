@@ -432,6 +432,8 @@ def probe(args, cfg, teacher_result: dict) -> None:
         balancing policy visits (most of D is a fallen pole or a cart out of view, where
         R^2 over all of D says little about the precision a controller needs)."""
         keep = balancing(y)
+        if not keep.any():  # (tiny runs) no balancing state among the test states
+            return [float("nan")] * y.shape[-1]
         return [round(v, 4) for v in (predict(x[keep]) - y[keep]).pow(2).mean(0).sqrt().tolist()]
 
     start = time.perf_counter()
@@ -456,9 +458,10 @@ def probe(args, cfg, teacher_result: dict) -> None:
             for name, images_heldout in heldout.items():
                 record[f"r2_{name}"] = r2(images_heldout, states[test])
             if frames == 1 and args.task.startswith("cartpole"):
-                record["balancing_states"] = int(balancing(states[test]).sum())
-                record["balancing_std"] = [round(v, 4) for v in
-                                           states[test][balancing(states[test])].std(0).tolist()]
+                kept = states[test][balancing(states[test])]
+                record["balancing_states"] = len(kept)
+                record["balancing_std"] = ([round(v, 4) for v in kept.std(0).tolist()]
+                                           if len(kept) > 1 else [float("nan")] * kept.shape[-1])
                 record["balancing_rmse_test"] = balancing_rmse(pixels[test], states[test])
                 for name, images_heldout in heldout.items():
                     record[f"balancing_rmse_{name}"] = balancing_rmse(images_heldout,

@@ -92,7 +92,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                                        "--name", "h", "--eval-scenes", "training"]),
                            ("probe", ["--arch", "keypoints"]),
                            ("probe", ["--frames", "2", "--shift", "2"]),
-                           ("warm", ["--arch", "keypoints", "--warm-updates", "2"])):
+                           ("warm", ["--arch", "keypoints", "--warm-updates", "2"]),
+                           ("positions", ["--slices", "3", "--init-rssm"])):
         diag = subprocess.run(
             [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
              "--preset", "tiny", "--outputs", str(tmp_path), "--updates", "2",
@@ -109,7 +110,14 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
             assert set(line["scenes"]) == {"training"} and "mean" in line["scenes"]["training"]
             assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
             continue
+        if variant == "positions":  # exact (x, cos, sin) only, the options recorded
+            assert "mean" in line and line["slices"] == 3 and line["init_rssm"]
+            assert "copied" in diag.stdout
+            continue
         assert ("mean" in line) if variant == "state" else len(line["r2_test"]) == 5
+        if variant == "probe" and "--frames" not in extra:  # balancing-state precision
+            assert len(line["balancing_rmse_test"]) == len(line["balancing_std"]) == 5
+            assert line["balancing_states"] >= 0
         if "--frames" in extra:  # each image read with the one before it
             assert line["frames"] == 2
         if "--heldout-renders" in extra:
