@@ -207,7 +207,8 @@ def distil(args, cfg, teacher_result: dict) -> None:
             extra.update(latent_r2(twist, probe_batch))
         print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
                           "lr": args.lr, "slices": args.slices or cfg.student_slices,
-                          "init_rssm": args.init_rssm or args.variant == "init", "mean": result["mean"], "std": result["std"], **extra,
+                          "init_rssm": args.init_rssm or args.variant == "init",
+                          "mean": result["mean"], "std": result["std"], **extra,
                           "train_s": round(seconds, 1),
                           "last": mean_metrics(history, 50) if history else None}),
               flush=True)
