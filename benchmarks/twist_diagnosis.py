@@ -121,13 +121,17 @@ def copy_rssm(teacher, student) -> None:
     print(f"copied {len(same)}/{len(own)} RSSM tensors from the teacher", flush=True)
 
 
+#: variants whose student reads the privileged state vector (evaluated on state, no images)
+STATE_VARIANTS = ("state", "positions")
+
+
 def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
                  standardise_belief: bool = False, positions: list[int] | None = None,
                  init_rssm: bool = False) -> TwistStudent:
     overrides = {} if lr is None else {"lr": lr}
     if standardise_belief:
         overrides["standardise_belief"] = True
-    if variant in ("state", "positions"):
+    if variant in STATE_VARIANTS:
         state_dim, action_dim = recipe.state_dim(task)
         dims = list(range(state_dim)) if variant == "state" else positions
         student = DreamerWorldModel.teacher(len(dims), action_dim, cfg.model_size)
@@ -187,7 +191,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
                                   stage / "student.pt", every=100,
                                   desc=args.variant) if updates else []
         seconds = time.perf_counter() - start
-        if args.variant in ("state", "positions"):
+        if args.variant in STATE_VARIANTS:
             policy = DreamerPolicy(twist.student, teacher.actor, "state", explore=False)
             result = evaluate_returns(args.task, policy, twist.make_primer(),
                                       args.seed + 10_000, args.episodes, cfg.eval_steps,
@@ -197,13 +201,13 @@ def distil(args, cfg, teacher_result: dict) -> None:
             result = recipe.evaluate(cfg_eval, args.task, args.seed, twist.policy(),
                                      twist.make_primer(), pixels=True)
         scenes = {}  # the same student on other scenes: which part of the shift costs return
-        for name in args.eval_scenes if args.variant not in ("state", "positions") else []:
+        for name in args.eval_scenes if args.variant not in STATE_VARIANTS else []:
             scene = evaluate_returns(args.task, twist.policy(), twist.make_primer(),
                                      args.seed + 10_000, args.episodes, cfg.eval_steps, True,
                                      EVAL_SCENES[name])
             scenes[name] = {"mean": scene["mean"], "std": scene["std"]}
         extra = {"scenes": scenes} if scenes else {}
-        if args.variant not in ("state", "positions"):
+        if args.variant not in STATE_VARIANTS:
             extra.update(latent_r2(twist, probe_batch))
         print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
                           "lr": args.lr, "slices": args.slices or cfg.student_slices,
@@ -427,15 +431,20 @@ def probe(args, cfg, teacher_result: dict) -> None:
         error = (predict(x) - y).pow(2).mean(0)
         return [round(v, 2) for v in (1 - error / y.var(0)).tolist()]
 
-    def balancing_rmse(x, y) -> list[float]:
-        """RMSE per state dimension on the test states where the pole is within
-        BALANCING_ANGLE of upright and the cart within the camera's view: the states a
-        balancing policy visits (most of D is a fallen pole or a cart out of view, where
-        R^2 over all of D says little about the precision a controller needs)."""
-        keep = balancing(y)
-        if not keep.any():  # (tiny runs) no balancing state among the test states
-            return [float("nan")] * y.shape[-1]
-        return [round(v, 4) for v in (predict(x[keep]) - y[keep]).pow(2).mean(0).sqrt().tolist()]
+    # The test states where the pole is within BALANCING_ANGLE of upright and the cart in
+    # the camera's view: the states a balancing policy visits (most of D is a fallen pole
+    # or a cart out of view, where R^2 over all of D says little about the precision a
+    # controller needs). Cartpole only; the same test states for every image set.
+    keep = (balancing(states[test]) if args.task.startswith("cartpole") and frames == 1
+            else None)
+
+    def balancing_rmse(images) -> list[float]:
+        """RMSE per state dimension of the state read from ``images`` of the test states,
+        on the balancing ones (NaN where there are none, e.g. in tiny runs)."""
+        if not keep.any():
+            return [float("nan")] * states.shape[-1]
+        error = predict(images[keep]) - states[test][keep]
+        return [round(v, 4) for v in error.pow(2).mean(0).sqrt().tolist()]
 
     start = time.perf_counter()
     n = len(train)
@@ -458,15 +467,14 @@ def probe(args, cfg, teacher_result: dict) -> None:
                                      else pairs(train[:len(test)]), states[train[:len(test)]])}
             for name, images_heldout in heldout.items():
                 record[f"r2_{name}"] = r2(images_heldout, states[test])
-            if frames == 1 and args.task.startswith("cartpole"):
-                kept = states[test][balancing(states[test])]
+            if keep is not None:
+                kept = states[test][keep]
                 record["balancing_states"] = len(kept)
                 record["balancing_std"] = ([round(v, 4) for v in kept.std(0).tolist()]
                                            if len(kept) > 1 else [float("nan")] * kept.shape[-1])
-                record["balancing_rmse_test"] = balancing_rmse(pixels[test], states[test])
+                record["balancing_rmse_test"] = balancing_rmse(pixels[test])
                 for name, images_heldout in heldout.items():
-                    record[f"balancing_rmse_{name}"] = balancing_rmse(images_heldout,
-                                                                      states[test])
+                    record[f"balancing_rmse_{name}"] = balancing_rmse(images_heldout)
             record["seconds"] = round(time.perf_counter() - start, 1)
             print(json.dumps(record), flush=True)
 
