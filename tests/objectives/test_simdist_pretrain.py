@@ -108,6 +108,72 @@ def test_finetuning_changes_only_the_dynamics():
     assert loss(td)["loss_consistency"].item() < first / 2
 
 
+def test_finetune_head_terms_equal_hand_computation():
+    wm = _model()
+    td = linear_system_batch(batch=2, time=5, obs_dim=4)
+    out = DynamicsFinetuneLoss(wm, horizon=2, reward_weight=0.5, value_weight=2.0)(td)
+    act, reward = td["action"], td["next", "reward"]
+    z = wm.encode_sequence(td["observation"], td["is_init"].squeeze(-1))
+    cons, rew, val = [], [], []
+    for t in range(3):  # starts 0..T-H-1
+        zi = z[:, t]
+        for i in range(2):
+            zi = wm.next(zi, act[:, t + i])
+            cons.append(((zi - z[:, t + i + 1]) ** 2).sum(-1))
+            val.append((wm.value(zi) - wm.value(z[:, t + i + 1])) ** 2)  # frozen V, both sides
+            if i < 1:  # predicted latents z^_{t+1..t+H-1}, each with its own action
+                rew.append((wm.reward(zi, act[:, t + i + 1]) - reward[:, t + i + 1]) ** 2)
+    torch.testing.assert_close(out["loss_consistency"], torch.stack(cons).mean())
+    torch.testing.assert_close(out["loss_reward"], 0.5 * torch.stack(rew).mean())
+    torch.testing.assert_close(out["loss_value"], 2.0 * torch.stack(val).mean())
+    torch.testing.assert_close(out["reward_error_on_predictions"], torch.stack(rew).mean())
+    reference = DynamicsFinetuneLoss(wm, horizon=2)(td)  # weights 0: consistency alone
+    assert sorted(k for k in reference.keys() if k.startswith("loss_")) == ["loss_consistency"]
+    torch.testing.assert_close(reference["loss_consistency"], out["loss_consistency"])
+
+
+def test_finetuning_through_frozen_heads_changes_only_the_dynamics():
+    wm = _model()
+    loss = DynamicsFinetuneLoss(wm, horizon=3, reward_weight=1.0, value_weight=1.0)
+    frozen = {name: copy.deepcopy(part.state_dict()) for name, part in wm.parts().items()
+              if name != "dynamics"}
+    opt = torch.optim.Adam(wm.parameters(), lr=1e-2)  # deliberately every parameter
+    td = linear_system_batch(batch=8, time=8, obs_dim=4, seed=3)
+    first = loss(td)
+    for _ in range(100):
+        out = loss(td)
+        opt.zero_grad()
+        sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        assert all(p.grad is not None for p in wm.dynamics.parameters())
+        for name, part in wm.parts().items():
+            if name != "dynamics":
+                assert all(p.grad is None for p in part.parameters()), name
+        opt.step()
+    for name, state in frozen.items():
+        for k, v in getattr(wm, name).state_dict().items():
+            assert torch.equal(v, state[k]), (name, k)
+    last = loss(td)
+    assert last["loss_reward"] < first["loss_reward"]
+    # the reward term is what lowered the frozen reward head's error on predictions:
+    # consistency alone, same steps from the same model, leaves it higher
+    wm_alone = _model()
+    alone = DynamicsFinetuneLoss(wm_alone, horizon=3)
+    opt = torch.optim.Adam(alone.trainable_parameters(), lr=1e-2)
+    for _ in range(100):
+        opt.zero_grad()
+        alone(td)["loss_consistency"].backward()
+        opt.step()
+    assert last["reward_error_on_predictions"] < alone(td)["reward_error_on_predictions"]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(reward_weight=-1.0), "reward_weight"), (dict(value_weight=float("nan")), "value_weight"),
+    (dict(horizon=1, reward_weight=1.0), "horizon >= 2")])
+def test_finetune_weights_are_checked(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        DynamicsFinetuneLoss(_model(), **kwargs)
+
+
 def test_probe_trains_only_the_probe():
     wm = _model()
     probe = StateDecoder(wm.latent_dim, 4, hidden=16, layers=2)

@@ -56,6 +56,11 @@ class SimDistConfig:
     # keeps their squared error from drowning the consistency term in the shared encoder.
     # (Adam makes the value head's own step size independent of it.)
     value_weight: float = 1.0
+    # Dynamics-only finetuning through the frozen heads (DynamicsFinetuneLoss): recorded
+    # target rewards on predicted latents, and the frozen value head on predicted vs
+    # encoded latents. 0 and 0: the reference's consistency-only finetuning.
+    finetune_reward_weight: float = 0.0
+    finetune_value_weight: float = 0.0
 
 
 # the actions a latency-compensating policy has sent that the robot may not apply yet
@@ -157,7 +162,9 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self.pretrain_loss = SimDistPretrainLoss(world_model, horizon=config.horizon,
                                                  bc_weight=config.bc_weight,
                                                  value_weight=config.value_weight)
-        self.finetune_loss = DynamicsFinetuneLoss(world_model, horizon=config.horizon)
+        self.finetune_loss = DynamicsFinetuneLoss(world_model, horizon=config.horizon,
+                                                  reward_weight=config.finetune_reward_weight,
+                                                  value_weight=config.finetune_value_weight)
         self.pretrain_optim = torch.optim.Adam(world_model.parameters(), lr=config.lr)
         self.finetune_optim = torch.optim.Adam(self.finetune_loss.trainable_parameters(),
                                                lr=config.finetune_lr)
@@ -191,7 +198,7 @@ class SimDistAgent(ckpt_format.LoadableAgent):
     def finetune_update(self, batch: TensorDictBase) -> dict[str, float]:
         batch = batch.to(self.device)
         out = self.finetune_loss(batch)
-        self._apply(out["loss_consistency"], self.finetune_optim)
+        self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.finetune_optim)
         return {k: v.item() for k, v in out.items()}
 
     def finetune_whole_update(self, batch: TensorDictBase) -> dict[str, float]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -144,21 +145,36 @@ class SimDistPretrainLoss(SimdistLoss):
 
 
 class DynamicsFinetuneLoss(SimdistLoss):
-    """SimDist finetuning: latent consistency on target data, training **only** dynamics.
+    """SimDist finetuning on target data, training **only** the dynamics.
 
-    The consistency term is :class:`SimDistPretrainLoss`'s (squared error summed over
-    latent dimensions, averaged over starts and horizon steps).
+    ``loss_consistency`` is :class:`SimDistPretrainLoss`'s term (squared error summed over
+    latent dimensions, averaged over starts and horizon steps). Two optional terms make
+    the dynamics right where the planner reads them, through the *frozen* heads:
 
-    The encoder runs under ``torch.no_grad`` and no head is evaluated, so encoder, reward,
-    value and policy parameters can never receive a gradient; :meth:`trainable_parameters`
-    is the dynamics' parameters alone. Diagnostics report the frozen heads' reward error
-    on the predicted latents (without gradient).
+    - ``loss_reward = reward_weight * mean_i (r(z^_{t+i}, a_{t+i}) - r_{t+i})^2`` for
+      ``i = 1..H-1`` on the recorded target rewards (``i = 0`` has no predicted latent);
+    - ``loss_value = value_weight * mean_i (V(z^_{t+i}) - sg V(z_{t+i}))^2`` for
+      ``i = 1..H``: the frozen value head on the prediction against the same head on the
+      encoded observation (target data carry no value labels; this asks the dynamics to
+      land where the value head agrees, not to change what it says).
+
+    The heads are evaluated with detached parameters and the encoder under
+    ``torch.no_grad``, so encoder, reward, value and policy can never receive a gradient;
+    :meth:`trainable_parameters` is the dynamics' parameters alone. With both weights 0
+    (the default, the reference's loss) no head is evaluated with gradient; the frozen
+    reward head's error on the predicted latents is reported either way
+    (``reward_error_on_predictions``).
 
     Examples:
         >>> wm = SimDistWorldModel.build(obs_dim=6, action_dim=2, size="tiny")
-        >>> loss = DynamicsFinetuneLoss(wm, horizon=3)
+        >>> loss = DynamicsFinetuneLoss(wm, horizon=3, reward_weight=1.0)
         >>> {id(p) for p in loss.trainable_parameters()} == {id(p) for p in wm.dynamics.parameters()}
         True
+        >>> td = TensorDict({"observation": torch.randn(2, 8, 6), "action": torch.rand(2, 8, 2),
+        ...     "is_init": torch.zeros(2, 8, 1, dtype=torch.bool),
+        ...     "next": {"reward": torch.randn(2, 8, 1)}}, [2, 8])
+        >>> sorted(k for k in loss(td).keys() if k.startswith("loss"))
+        ['loss_consistency', 'loss_reward']
     """
 
     @dataclass
@@ -171,41 +187,72 @@ class DynamicsFinetuneLoss(SimdistLoss):
     default_keys = _AcceptedKeys
 
     def __init__(self, world_model: SimDistWorldModel, horizon: int = 5,
+                 reward_weight: float = 0.0, value_weight: float = 0.0,
                  check_inputs: bool = True):
         super().__init__(check_inputs)
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
+        for name, w in (("reward_weight", reward_weight), ("value_weight", value_weight)):
+            if not (w >= 0 and math.isfinite(w)):
+                raise ValueError(f"{name} must be a finite number >= 0, got {w}")
+        if reward_weight > 0 and horizon < 2:
+            raise ValueError("reward_weight > 0 needs horizon >= 2: the reward term reads "
+                             "predicted latents z^_{t+1..t+H-1}")
         self.world_model, self.horizon = world_model, horizon
+        self.reward_weight, self.value_weight = reward_weight, value_weight
 
     def trainable_parameters(self):
         return list(self.world_model.dynamics.parameters())
 
     def forward(self, td: TensorDictBase) -> TensorDict:
-        return self._consistency(td, freeze_encoder=True)
+        return self._loss(td, whole_model=False)
 
     def consistency_all_parts(self, td: TensorDictBase) -> TensorDict:
-        """The same consistency term with gradients into the encoder too (an ablation:
-        "finetune the whole world model"; targets stay stop-gradient)."""
-        return self._consistency(td, freeze_encoder=False)
+        """The same terms with gradients into the encoder and heads too (an ablation:
+        "finetune the whole world model"; consistency and value targets stay
+        stop-gradient)."""
+        return self._loss(td, whole_model=True)
 
-    def _consistency(self, td: TensorDictBase, freeze_encoder: bool) -> TensorDict:
+    def _loss(self, td: TensorDictBase, whole_model: bool) -> TensorDict:
         B, T = sequence_batch(td)
         wm, H = self.world_model, self.horizon
         is_init = self.read_flag(td, "is_init", (B, T))
         action = self.read(td, "action")
-        with torch.set_grad_enabled(not freeze_encoder):  # frozen: the encoder builds no graph
+        with torch.set_grad_enabled(whole_model):  # frozen: the encoder builds no graph
             latents = wm.encode_sequence(self.read(td, "observation"), is_init)
         predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
-        consistency = masked_mean((predicted - targets.detach()).pow(2).sum(-1), mask)
+        out = {"loss_consistency": masked_mean((predicted - targets.detach()).pow(2).sum(-1), mask)}
+        S = T - H
+        act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
+        reward_t = self.read_scalar(td, "reward", (B, T)).unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
+        reward_head = wm.reward_head if whole_model else frozen(wm.reward_head)
+        value_head = wm.value_head if whole_model else frozen(wm.value_head)
+        if self.reward_weight > 0:
+            out["loss_reward"] = self.reward_weight * masked_mean(
+                (reward_head(predicted[:, :, :-1], act) - reward_t).pow(2).squeeze(-1),
+                mask[..., :-1])
+        if self.value_weight > 0:
+            out["loss_value"] = self.value_weight * masked_mean(
+                (value_head(predicted) - value_head(targets).detach()).pow(2).squeeze(-1), mask)
         with torch.no_grad():
-            S = T - H
-            act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
-            reward_t = self.read_scalar(td, "reward", (B, T)).unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
-            reward_err = masked_mean(
+            out["reward_error_on_predictions"] = masked_mean(
                 (wm.reward(predicted[:, :, :-1], act) - reward_t).pow(2).squeeze(-1),
                 mask[..., :-1]) if H > 1 else torch.zeros(())
-        return self.finish(TensorDict({"loss_consistency": consistency,
-                                       "reward_error_on_predictions": reward_err}, []))
+        return self.finish(TensorDict(out, []))
+
+
+def frozen(module: torch.nn.Module):
+    """``module`` called with detached parameters: gradients reach its inputs, never it.
+
+    Examples:
+        >>> head = torch.nn.Linear(2, 1)
+        >>> x = torch.ones(1, 2, requires_grad=True)
+        >>> frozen(head)(x).sum().backward()
+        >>> head.weight.grad is None, x.grad is not None
+        (True, True)
+    """
+    params = {name: p.detach() for name, p in module.named_parameters()}
+    return lambda *args: torch.func.functional_call(module, params, args)
 
 
 @torch.no_grad()

@@ -106,7 +106,7 @@ class Config:
     # worse (Spearman .07 vs .23) and planned the same (slippery_slope 8 min: +17% vs +18%,
     # 3 seeds; benchmarks/README.md, "Does training the model over the planner's horizon help?")
     model_horizon: int = 5
-    pretrain_updates: int = 12000
+    pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
     # Value labels are discounted returns, up to 1/(1-gamma) = 100 rewards: weighting their
     # squared error by ~(1-gamma)^2 regresses V/100 at weight 1 (errors of 0.1 in V/100
@@ -142,6 +142,11 @@ class Config:
     collect_episodes: int = 12  # worlds stepped at once while collecting
     finetune_updates: int = 1000  # per round, for every method (same data, same updates)
     finetune_lr: float = 1e-4  # dynamics-only (and whole-model ablation) learning rate
+    # finetuning terms through the frozen heads (DynamicsFinetuneLoss; the ablation gets the
+    # same loss): recorded target rewards on predicted latents, and the frozen value head on
+    # predicted vs encoded latents. 0 / 0: consistency alone, the reference's finetuning.
+    finetune_reward_weight: float = 0.0
+    finetune_value_weight: float = 0.0
     sac_batch_size: int = 256  # continued-SAC baseline batch size
     output_dir: str = "outputs/simdist_quadruped"  # stages, results and plots go here
     # where the world model and probe train and plan ("cpu", "cuda", "auto"); envs, the
@@ -170,7 +175,8 @@ class Config:
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
                        "finetune_lr", "sac_batch_size", "pretrain_updates")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
-                       "model_history", "threads", allow_zero=True)
+                       "model_history", "threads", "finetune_reward_weight",
+                       "finetune_value_weight", allow_zero=True)
         check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
               f"needs model_horizon < slice_len <= episode_steps, got {self.model_horizon}, "
               f"{self.slice_len}, {self.episode_steps}")
@@ -287,7 +293,9 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int) -> SimDistAgent:
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
-                                          value_weight=cfg.value_weight),
+                                          value_weight=cfg.value_weight,
+                                          finetune_reward_weight=cfg.finetune_reward_weight,
+                                          finetune_value_weight=cfg.finetune_value_weight),
                         planner_config=cfg.planner()).to(cfg.device)
 
 
