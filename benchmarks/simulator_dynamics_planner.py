@@ -54,6 +54,10 @@ def main(argv=None):
                         help="instead of evaluating: how well each world model (NAME=path of "
                              "its weights, or NAME=pretrained) ranks candidate plans against "
                              "the simulator (see ranking())")
+    parser.add_argument("--ensemble", action="append", default=[], metavar="NAME=A+B+...",
+                        help="with --ranking: also rank by the mean of the named models' "
+                             "scores, each standardised per state (a score-level ensemble of "
+                             "independently trained models); repeatable")
     parser.add_argument("--ranking-noise", type=float, default=0.3,
                         help="std of the candidates around the plan (the prior's noise)")
     parser.add_argument("--save-rollouts", default=None, metavar="DIR",
@@ -68,7 +72,9 @@ def main(argv=None):
     if args.ranking:
         for domain in args.domains:
             ranking(cfg, pretrained, dict(item.split("=", 1) for item in args.ranking), domain,
-                    args.ranking_noise, args.episodes, args.env_seed)
+                    args.ranking_noise, args.episodes, args.env_seed,
+                    ensembles={k: v.split("+") for k, v in
+                               (item.split("=", 1) for item in args.ensemble)})
         return
     variants = [parse_variant(v) for v in (args.variant or ["recipe:"])]
     print(f"run {run} (seed {cfg.seed}), {cfg.episodes} episodes of {cfg.episode_steps} "
@@ -98,7 +104,8 @@ def main(argv=None):
 
 
 def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, worlds: int,
-            env_seed: int | None, checkpoints=range(19, 200, 20), candidates: int = 64):
+            env_seed: int | None, checkpoints=range(19, 200, 20), candidates: int = 64,
+            ensembles: dict[str, list[str]] | None = None):
     """Does a learned model rank the planner's candidates as the true dynamics do?
 
     The first model's planner drives ``worlds`` episodes; every 20 steps, ``candidates``
@@ -107,6 +114,9 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
     model (same score: discounted predicted rewards + terminal value). Prints the mean
     Spearman correlation of the two scores per state, and where the model's best
     candidate lies on the true scale: 0 = the candidates' mean, 1 = the truly best.
+    ``ensembles`` maps a name to models of ``weights`` whose scores, standardised per
+    state (each model's scale differs), are averaged and ranked the same way: if the
+    models' errors are independent, the mean ranks better than any member.
     """
     from scipy import stats
     from torchrl.envs.utils import step_mdp
@@ -124,8 +134,12 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
     planners = {k: LatentMPPIPlanner.from_world_model(a.world_model, cfg.planner())
                 for k, a in agents.items()}
     generator = torch.Generator().manual_seed(cfg.seed)
-    rho = {k: [] for k in agents}
-    pick = {k: [] for k in agents}
+    ensembles = ensembles or {}
+    unknown = {m for members in ensembles.values() for m in members} - set(agents)
+    if unknown:
+        raise ValueError(f"--ensemble names models not in --ranking: {sorted(unknown)}")
+    rho = {k: [] for k in [*agents, *ensembles]}
+    pick = {k: [] for k in rho}
     td = env.reset()
     with torch.no_grad():
         for t in range(max(checkpoints) + 1):
@@ -138,9 +152,13 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
                 truth.dynamics.sync()
                 true = truth.planner._evaluate(truth.dynamics.latent(history),
                                                actions.double())[0].float()
+                scores = {}
                 for k, agent in agents.items():
                     latent = agent.world_model.encode(history).reshape(worlds, -1)
-                    predicted = planners[k]._evaluate(latent, actions)[0]
+                    scores[k] = planners[k]._evaluate(latent, actions)[0]
+                for k, members in ensembles.items():
+                    scores[k] = torch.stack([standardise(scores[m]) for m in members]).mean(0)
+                for k, predicted in scores.items():
                     for b in range(worlds):
                         rho[k].append(stats.spearmanr(true[b], predicted[b]).statistic)
                         best = true[b, predicted[b].argmax()]
@@ -150,10 +168,15 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
     env.close()
     print(f"| model | domain | Spearman (true vs predicted score) | model's pick (0 mean, 1 best) |")
     print("| --- | --- | --- | --- |")
-    for k in agents:
+    for k in rho:
         r, q = torch.tensor(rho[k]), torch.tensor(pick[k])
         print(f"| {k} | {domain} | {r.nanmean():.2f} +- {r[~r.isnan()].std():.2f} | "
               f"{q.mean():.2f} +- {q.std():.2f} (n={len(q)}) |", flush=True)
+
+
+def standardise(scores: torch.Tensor) -> torch.Tensor:
+    """Per-state z-scores of candidate scores ``[worlds, candidates]``."""
+    return (scores - scores.mean(-1, keepdim=True)) / scores.std(-1, keepdim=True).clamp_min(1e-9)
 
 
 def parse_variant(text: str) -> tuple[str, dict]:
