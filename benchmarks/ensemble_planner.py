@@ -3,7 +3,7 @@
 `simulator_dynamics_planner.py --ranking ... --ensemble` measures that the mean of several
 models' scores ranks the planner's candidates better than any one of them (their errors
 are partly independent). This benchmark asks whether that reaches the return: it plans
-with :class:`WorldModelEnsemble`, K finished SimDist world models side by side (each
+with :class:`simdist.modules.WorldModelEnsemble`, K finished SimDist world models side by side (each
 encodes the history in its own latent space and rolls its own dynamics; a candidate's
 reward, terminal value and the prior's proposal are the members' means), in the recipe's
 planner, on the recipe's evaluation worlds of ``--run``, next to each member alone.
@@ -11,82 +11,35 @@ planner, on the recipe's evaluation worlds of ``--run``, next to each member alo
     python benchmarks/ensemble_planner.py --run RUN --domains slippery_slope \\
         --members RUN/stages/round_4/simdist.pt OTHER/stages/round_4/simdist.pt ...
 
+``--chain OUT`` runs SimDist's target rounds with the ensemble instead: the ensemble's
+planner collects the round's target data (the recipe's budgets and collection seeds),
+each member's dynamics alone is finetuned on all data so far (the recipe's
+``finetune_updates``, loss, lr and batch), and the ensemble is evaluated in the target:
+
+    python benchmarks/ensemble_planner.py --run RUN --chain OUT \\
+        --members pretrained OTHER1/stages/pretrain/world_model.pt OTHER2/...
+
 The members must share the run's model config (size, history). Costs K x one model's
-planner time.
+planner time (and K x its finetuning updates).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
-from torch import nn
 
 from simdist.agents import SimDistAgent
 from simdist.envs import get_target
-from simdist.pipelines import locomotion_env, progress_stats, rollout
+from simdist.modules import WorldModelEnsemble
+from simdist.pipelines import as_slices, locomotion_env, progress_stats, rollout
+from simdist.pipelines import train_resumable
 from simdist.recipes import simdist_quadruped as recipe
-
-
-class _Split(nn.Module):
-    """Applies member ``i``'s part to its slice of a concatenated latent."""
-
-    def __init__(self, parts, latent_dim: int, reduce: str):
-        super().__init__()
-        self.parts, self.latent_dim, self.reduce = nn.ModuleList(parts), latent_dim, reduce
-
-    def forward(self, latent, *rest):
-        chunks = latent.split(self.latent_dim, -1)
-        if len(chunks) != len(self.parts):
-            raise ValueError(f"latent of size {latent.shape[-1]} is not {len(self.parts)} "
-                             f"members x {self.latent_dim}")
-        outs = [part(z, *rest) for part, z in zip(self.parts, chunks)]
-        return torch.cat(outs, -1) if self.reduce == "cat" else torch.stack(outs).mean(0)
-
-
-class _Encoders(_Split):
-    def __init__(self, encoders, latent_dim: int):
-        super().__init__(encoders, latent_dim, "cat")
-        self.history, self.obs_dim = encoders[0].history, encoders[0].obs_dim
-
-    def forward(self, window):
-        return torch.cat([enc(window) for enc in self.parts], -1)
-
-
-class WorldModelEnsemble(nn.Module):
-    """K SimDist world models as one: concatenated latents, mean reward/value/prior.
-
-    Has the verbs and parts :class:`~simdist.modules.LatentMPPIPlanner.from_world_model`
-    and :class:`~simdist.agents.SimDistPolicy` use, so the recipe's planner runs on it
-    unchanged.
-    """
-
-    def __init__(self, members):
-        super().__init__()
-        first = members[0]
-        if any(m.latent_dim != first.latent_dim or m.encoder.history != first.encoder.history
-               for m in members):
-            raise ValueError("ensemble members must share latent size and history")
-        L = first.latent_dim
-        self.members = nn.ModuleList(members)
-        self.encoder = _Encoders([m.encoder for m in members], L)
-        self.dynamics = _Split([m.dynamics for m in members], L, "cat")
-        self.reward_head = _Split([m.reward_head for m in members], L, "mean")
-        self.value_head = _Split([m.value_head for m in members], L, "mean")
-        self.policy_head = _Split([m.policy_head for m in members], L, "mean")
-        self.latent_dim, self.action_dim = L * len(members), first.action_dim
-
-    def encode(self, window):
-        return self.encoder(window)
-
-    def rollout(self, latent, actions):
-        out = []
-        for i in range(actions.shape[-2]):
-            latent = self.dynamics(latent, actions[..., i, :])
-            out.append(latent)
-        return torch.stack(out, -2)
+from simdist.utils import load_memmap, save_memmap
 
 
 def evaluate(cfg, world_model, domain: str, name: str) -> str:
@@ -106,6 +59,44 @@ def evaluate(cfg, world_model, domain: str, name: str) -> str:
             f"{time.perf_counter() - start:.0f} |")
 
 
+def chain(cfg, agents: list, out: Path) -> None:
+    """SimDist's rounds with the ensemble planner collecting and every member finetuned."""
+    members = [a.world_model for a in agents]
+    ensemble = SimDistAgent(WorldModelEnsemble(members), planner_config=cfg.planner())
+    stats = recipe.evaluate_planner(cfg, ensemble, cfg.target)[0]
+    rows = [(0.0, stats)]
+    data, done = [], 0
+    for k, minutes in enumerate(cfg.budgets_min):
+        budget = round(minutes * recipe.STEPS_PER_MINUTE)
+        folder = out / f"round_{k + 1}" / "data"
+        if not folder.exists():
+            save_memmap(recipe.collect_target_data(cfg, ensemble, budget - done,
+                                                   seed=cfg.seed + 1000 * (k + 1)), folder)
+        data.append(load_memmap(folder))
+        done = sum(d.numel() for d in data)
+        buffer = as_slices(torch.cat(data, 0), cfg.slice_len, cfg.batch_slices)
+        for i, agent in enumerate(agents):
+            # a fresh optimiser per round, as the recipe's (it reloads the agent each round)
+            optim = torch.optim.Adam(agent.finetune_loss.trainable_parameters(),
+                                     lr=agent.config.finetune_lr)
+            agent.finetune_optim = optim
+            train_resumable(agent.finetune_update,
+                            lambda: buffer.sample().reshape(-1, cfg.slice_len),
+                            cfg.finetune_updates, {"wm": agent.world_model, "opt": optim},
+                            out / f"round_{k + 1}" / f"member_{i}.ckpt",
+                            desc=f"round {k + 1}: finetune member {i} dynamics",
+                            seed=cfg.seed + 100 * k + i)
+        stats = recipe.evaluate_planner(cfg, ensemble, cfg.target)[0]
+        rows.append((minutes, stats))
+        low, high = stats["ci_fraction"]
+        print(f"| ensemble of {len(members)} | {minutes:g} min ({done} steps) | "
+              f"{100 * stats['mean_fraction']:.0f}% [{100 * low:.0f}, {100 * high:.0f}] "
+              f"({100 * stats['iqm_fraction']:.0f}) |", flush=True)
+    (out / "chain.json").write_text(json.dumps(
+        [{"minutes": m, **{k: v for k, v in s.items() if isinstance(v, (int, float, list))}}
+         for m, s in rows], indent=1))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -115,12 +106,18 @@ def main(argv=None):
     parser.add_argument("--domains", nargs="+", default=["slippery_slope"])
     parser.add_argument("--episodes", type=int, default=None, help="default: the run's")
     parser.add_argument("--alone", action="store_true", help="also evaluate each member alone")
+    parser.add_argument("--chain", default=None, metavar="OUT",
+                        help="run SimDist's target rounds with the ensemble (see above)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     cfg, pretrained = recipe.load_finished_run(
         args.run, **({"episodes": args.episodes} if args.episodes else {}))
-    members = [recipe.load_agent(cfg, pretrained, None if m == "pretrained" else m).world_model
-               for m in args.members]
+    agents = [recipe.load_agent(cfg, pretrained, None if m == "pretrained" else m)
+              for m in args.members]
+    members = [a.world_model for a in agents]
+    if args.chain:
+        chain(cfg, agents, Path(args.chain))
+        return
     print(f"run {args.run} (seed {cfg.seed}), {cfg.episodes} episodes, recipe planner")
     print("| planner's model | domain | % of commanded distance [95% CI] (IQM) | s |")
     print("| --- | --- | --- | --- |")

@@ -202,13 +202,15 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         return {k: v.item() for k, v in out.items()}
 
     def finetune_whole_update(self, batch: TensorDictBase) -> dict[str, float]:
-        """Ablation: consistency on target data with every part trainable (encoder too).
+        """Ablation: the finetuning loss on target data with every part trainable.
 
-        Target data carries no value labels, so the ablation uses the consistency term
-        alone but lets it move the encoder and heads' shared latent.
+        Target data carries no value labels, so by default the ablation uses the
+        consistency term alone but lets it move the encoder (the heads' shared latent);
+        with ``finetune_reward_weight``/``finetune_value_weight`` the head terms train the
+        heads as well.
         """
         out = self.finetune_loss.consistency_all_parts(batch.to(self.device))
-        self._apply(out["loss_consistency"], self.whole_optim)
+        self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.whole_optim)
         return {k: v.item() for k, v in out.items()}
 
     def policy(self, action_low=None, action_high=None, config: PlannerConfig | None = None,

@@ -3,6 +3,7 @@
 from simdist.modules.augment import RandomRotate, RandomShift
 from simdist.modules.encoders import (ChannelLayerNorm, HistoryEncoder, PixelEncoder,
                                       StateEncoder, simnorm)
+from simdist.modules.ensemble import WorldModelEnsemble
 from simdist.modules.heads import Actor, PixelDecoder, PolicyPrior, ScalarHead, StateDecoder
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.modules.rssm import RSSM, RSSMState
@@ -13,4 +14,4 @@ __all__ = ["RandomShift", "RandomRotate", "ChannelLayerNorm", "HistoryEncoder", 
            "simnorm", "Actor", "PixelDecoder",
            "PolicyPrior", "ScalarHead", "StateDecoder", "RSSM", "RSSMState", "SIMDIST_SIZES",
            "MLPDynamics", "SimDistWorldModel", "RSSM_SIZES", "DreamerWorldModel",
-           "LatentMPPIPlanner", "PlannerConfig"]
+           "LatentMPPIPlanner", "PlannerConfig", "WorldModelEnsemble"]

@@ -1,0 +1,142 @@
+"""Several SimDist world models planned with as one.
+
+A finetuned SimDist model ranks the planner's candidate plans only loosely against the
+true dynamics; independently trained models err partly independently, so the mean of
+their predictions ranks better than any one of them (`benchmarks/README.md`, "Several
+world models"). :class:`WorldModelEnsemble` puts K models side by side behind the verbs
+and parts the planner and :class:`~simdist.agents.SimDistPolicy` use, so the recipe's
+planner runs on it unchanged: each member encodes the history into its own latent and
+rolls its own dynamics (the ensemble's latent is their concatenation); a candidate's
+reward and terminal value, and the prior's proposal, are the members' means.
+
+Training stays per member (each is a :class:`~simdist.modules.SimDistWorldModel` with
+its own losses and optimisers); the ensemble is for planning.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from simdist.modules.checks import check_last_dims
+
+
+class _PerMember(nn.Module):
+    """Calls member ``i``'s part on slice ``i`` of a concatenated latent, then
+    concatenates (latents) or averages (rewards, values, actions) the outputs."""
+
+    def __init__(self, parts, latent_dim: int, combine: str):
+        super().__init__()
+        self.parts, self.member_dim, self.combine = nn.ModuleList(parts), latent_dim, combine
+        self.latent_dim = latent_dim * len(parts)
+
+    def forward(self, latent: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
+        check_last_dims("latent", latent, (self.latent_dim,))
+        outs = [part(z, *rest) for part, z in zip(self.parts, latent.split(self.member_dim, -1))]
+        return torch.cat(outs, -1) if self.combine == "cat" else torch.stack(outs).mean(0)
+
+
+class _Encoders(nn.Module):
+    """Every member's encoder on the same observation history, latents concatenated."""
+
+    def __init__(self, encoders):
+        super().__init__()
+        self.parts = nn.ModuleList(encoders)
+        first = encoders[0]
+        self.history, self.obs_dim = first.history, first.obs_dim
+        self.latent_dim = sum(e.latent_dim for e in encoders)
+
+    def forward(self, window: torch.Tensor) -> torch.Tensor:
+        return torch.cat([enc(window) for enc in self.parts], -1)
+
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
+        return torch.cat([enc.encode_sequence(obs, is_init) for enc in self.parts], -1)
+
+
+class WorldModelEnsemble(nn.Module):
+    """K SimDist world models as one model for planning.
+
+    The ensemble's latent is the members' latents concatenated (``[..., K * L]``); its
+    ``dynamics`` steps each member's slice with that member's dynamics; ``reward_head``,
+    ``value_head`` and ``policy_head`` return the members' means. It offers the verbs of
+    :class:`~simdist.modules.SimDistWorldModel` (``encode``, ``encode_sequence``,
+    ``next``, ``rollout``, ``reward``, ``value``, ``policy``) and its attributes
+    (``encoder.history``, ``encoder.obs_dim``, ``latent_dim``, ``action_dim``), so
+    :meth:`LatentMPPIPlanner.from_world_model <simdist.modules.LatentMPPIPlanner.from_world_model>`
+    and ``SimDistAgent(ensemble, planner_config=...).policy(...)`` plan with it unchanged.
+    Members keep their own weights: finetune each one (e.g. its own
+    ``SimDistAgent.finetune_update``), then plan with the ensemble.
+
+    Args:
+        members: SimDist world models with the same observation size, history, latent
+            size and action size (e.g. the same config pretrained from different seeds).
+
+    Raises:
+        ValueError: fewer than one member, or members that disagree on those sizes.
+
+    Examples:
+        >>> from simdist.modules import SimDistWorldModel, LatentMPPIPlanner, PlannerConfig
+        >>> members = [SimDistWorldModel.build(10, 3, size="tiny") for _ in range(3)]
+        >>> ensemble = WorldModelEnsemble(members)
+        >>> z = ensemble.encode(torch.randn(4, 2, 10))       # history 2 of the tiny size
+        >>> z.shape, ensemble.reward(z, torch.zeros(4, 3)).shape
+        (torch.Size([4, 48]), torch.Size([4, 1]))
+        >>> planner = LatentMPPIPlanner.from_world_model(
+        ...     ensemble, PlannerConfig(horizon=3, num_samples=16, num_elites=4))
+    """
+
+    def __init__(self, members):
+        super().__init__()
+        members = list(members)
+        if not members:
+            raise ValueError("WorldModelEnsemble needs at least one member")
+        first = members[0]
+
+        def sizes(m):
+            return (m.encoder.obs_dim, m.encoder.history, m.latent_dim, m.action_dim)
+
+        for i, m in enumerate(members[1:], 1):
+            if sizes(m) != sizes(first):
+                raise ValueError(
+                    f"ensemble member {i} has (obs_dim, history, latent_dim, action_dim) "
+                    f"{sizes(m)}, member 0 has {sizes(first)}: members must share them")
+        L = first.latent_dim
+        self.members = nn.ModuleList(members)
+        self.encoder = _Encoders([m.encoder for m in members])
+        self.dynamics = _PerMember([m.dynamics for m in members], L, "cat")
+        self.reward_head = _PerMember([m.reward_head for m in members], L, "mean")
+        self.value_head = _PerMember([m.value_head for m in members], L, "mean")
+        self.policy_head = _PerMember([m.policy_head for m in members], L, "mean")
+        self.latent_dim, self.action_dim = L * len(members), first.action_dim
+
+    def __len__(self) -> int:
+        return len(self.members)
+
+    # -- the verbs of SimDistWorldModel ---------------------------------------------------
+    def encode(self, window: torch.Tensor) -> torch.Tensor:
+        return self.encoder(window)
+
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
+        return self.encoder.encode_sequence(obs, is_init)
+
+    def next(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.dynamics(latent, action)
+
+    def rollout(self, latent: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """Predicts ``z_{1..H}`` from ``z_0 [..., K * L]`` and ``actions [..., H, A]``."""
+        check_last_dims("latent", latent, (self.latent_dim,))
+        check_last_dims("actions", actions, (self.action_dim,))
+        out = []
+        for i in range(actions.shape[-2]):
+            latent = self.dynamics(latent, actions[..., i, :])
+            out.append(latent)
+        return torch.stack(out, -2)
+
+    def reward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.reward_head(latent, action)
+
+    def value(self, latent: torch.Tensor) -> torch.Tensor:
+        return self.value_head(latent)
+
+    def policy(self, latent: torch.Tensor) -> torch.Tensor:
+        return self.policy_head(latent)
