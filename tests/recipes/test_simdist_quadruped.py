@@ -145,12 +145,36 @@ def test_model_history_sets_the_encoders_window():
     (["--slice-len", "2"], "needs model_horizon < slice_len"),
     (["--model-history", "-1"], "model_history: must be >= 0"),
     (["--threads", "-1"], "threads: must be >= 0"),
+    (["--ensemble-size", "0"], "ensemble_size: must be > 0"),
 ])
 def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message):
     proc = _run(*flags, "--output-dir", tmp_path / "out")
     assert proc.returncode == 2
     assert message in " ".join(proc.stderr.replace("│", " ").split())
     assert not (tmp_path / "out").exists()
+
+
+def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, tiny_expert):
+    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
+                "--budgets-min", 0.02, "--output-dir", tmp_path, "--threads", 1)
+    assert proc.returncode == 0, proc.stderr
+    stages = tmp_path / "stages"
+    pretrain = json.loads((stages / "pretrain.json").read_text())["result"]
+    assert len(pretrain["members"]) == 2 and pretrain["path"] == pretrain["members"][0]
+    first, second = (torch.load(m, weights_only=True) for m in pretrain["members"])
+    assert any(not torch.equal(v, second[k]) for k, v in first.items())  # two models
+    round_1 = json.loads((stages / "round_1.json").read_text())["result"]
+    for method in ("simdist", "whole"):
+        assert len(round_1[f"{method}_members"]) == 2
+        assert len(round_1[f"{method}_member_agents"]) == 2
+    # every member's finetuning touched only its own dynamics
+    for before, after in zip(pretrain["members"], round_1["simdist_members"]):
+        before, after = (torch.load(x, weights_only=True) for x in (before, after))
+        assert any(not torch.equal(v, before[k]) for k, v in after.items() if k.startswith("dynamics"))
+        assert all(torch.equal(v, before[k]) for k, v in after.items() if not k.startswith("dynamics"))
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert len(results["curves"]["SimDist: finetune dynamics"]) == 2
+    assert (tmp_path / "rerun_after.rrd").stat().st_size > 0
 
 
 def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_expert):

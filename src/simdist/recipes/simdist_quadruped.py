@@ -41,7 +41,7 @@ from simdist.data import DatasetConfig, generate_dataset, generate_shard, load_d
 from simdist.data.dataset import read_dataset_meta
 from simdist.envs import TASKS, describe_ranges, get_target
 from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
-from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder
+from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, WorldModelEnsemble
 from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_error
 from simdist.modules.planner import PlannerConfig
@@ -106,6 +106,14 @@ class Config:
     # worse (Spearman .07 vs .23) and planned the same (slippery_slope 8 min: +17% vs +18%,
     # 3 seeds; benchmarks/README.md, "Does training the model over the planner's horizon help?")
     model_horizon: int = 5
+    # world models pretrained (same dataset, different initialisation and batches) and
+    # planned with together (simdist.modules.WorldModelEnsemble); each member's dynamics is
+    # finetuned as itself, the whole-model ablation likewise. K costs K x the pretraining,
+    # finetuning and planner time, so the CPU default keeps 1. Three finetuned models
+    # planned together reached 30% of the commanded distance on slippery_slope against
+    # 26% for the best of them alone and 11% on average (benchmarks/README.md, "Several
+    # world models").
+    ensemble_size: int = 1
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
     # Value labels are discounted returns, up to 1/(1-gamma) = 100 rewards: weighting their
@@ -173,7 +181,7 @@ class Config:
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
                        "dataset_shard_episodes", "dataset_workers", "model_horizon",
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
-                       "finetune_lr", "sac_batch_size", "pretrain_updates")
+                       "finetune_lr", "sac_batch_size", "pretrain_updates", "ensemble_size")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
                        "model_history", "threads", "finetune_reward_weight",
                        "finetune_value_weight", allow_zero=True)
@@ -312,25 +320,45 @@ def term_shares(metrics: dict) -> dict:
     return {k: v / total for k, v in terms.items()}
 
 
+def pretrain_member(cfg: Config, buffer, data, expert_path: str, stage_dir: Path, i: int,
+                    logger=None) -> tuple[SimDistAgent, list[dict]]:
+    """Member ``i`` of the pretrained ensemble (member 0: the single model of K = 1, its
+    initialisation drawn from the generator as the caller left it)."""
+    if i:
+        torch.manual_seed(stage_seed(cfg.seed, f"pretrain/member_{i}/init"))
+    obs = data["observation"]
+    agent = new_agent(cfg, obs.shape[-1], data["action"].shape[-1])
+    flat = obs.reshape(-1, obs.shape[-1])
+    agent.world_model.encoder.set_normalisation(flat.mean(0), flat.std(0))
+    member = "" if i == 0 else f"member_{i}/"
+    if member:
+        (stage_dir / member).mkdir(parents=True, exist_ok=True)
+    history = train_resumable(
+        agent.pretrain_update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
+        cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim},
+        stage_dir / member / "training.pt",
+        desc="pretrain world model" + (f" (member {i})" if i else ""),
+        seed=stage_seed(cfg.seed, "pretrain" if i == 0 else f"pretrain/member_{i}"),
+        logger=logger, log_prefix="pretrain" if i == 0 else f"pretrain/member_{i}")
+    save_atomic(agent.world_model.state_dict(), stage_dir / member / "world_model.pt")
+    return agent, history
+
+
 def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
                    logger=None) -> dict:
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
     data = buffer[:]  # the whole memory-mapped dataset (a view: nothing is copied)
     obs = data["observation"]
-    agent = new_agent(cfg, obs.shape[-1], data["action"].shape[-1])
-    flat = obs.reshape(-1, obs.shape[-1])
-    agent.world_model.encoder.set_normalisation(flat.mean(0), flat.std(0))
-    history = train_resumable(
-        agent.pretrain_update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
-        cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim},
-        stage_dir / "training.pt", desc="pretrain world model",
-        seed=stage_seed(cfg.seed, "pretrain"), logger=logger, log_prefix="pretrain")
-    save_atomic(agent.world_model.state_dict(), stage_dir / "world_model.pt")
+    agent, history = pretrain_member(cfg, buffer, data, expert_path, stage_dir, 0, logger)
     agent_file = save_agent(cfg, agent, stage_dir / "agent.pt")
+    members = [str(stage_dir / "world_model.pt")]
+    for i in range(1, cfg.ensemble_size):
+        pretrain_member(cfg, buffer, data, expert_path, stage_dir, i, logger)
+        members.append(str(stage_dir / f"member_{i}" / "world_model.pt"))
     first, last = mean_metrics(history[:50], 50), mean_metrics(history)
-    return {"path": str(stage_dir / "world_model.pt"), "agent": agent_file, "obs_dim": obs.shape[-1],
-            "action_dim": data["action"].shape[-1],
+    return {"path": members[0], "members": members, "agent": agent_file,
+            "obs_dim": obs.shape[-1], "action_dim": data["action"].shape[-1],
             "first": first, "last": last,
             "term_shares_first": term_shares(first), "term_shares_last": term_shares(last),
             "heldout_prediction_error_rel": heldout_prediction_error(cfg, agent, expert_path)}
@@ -352,6 +380,22 @@ def load_agent(cfg: Config, pretrained: dict, path: str | None = None) -> SimDis
     agent = new_agent(cfg, pretrained["obs_dim"], pretrained["action_dim"])
     agent.world_model.load_state_dict(load_checkpoint(path or pretrained["path"]))
     return agent
+
+
+def member_paths(pretrained: dict, paths: list[str] | None = None) -> list[str]:
+    """The ensemble members' weights: ``paths`` if given, else the pretrained ones (a run
+    from before ensembles has one member)."""
+    return list(paths) if paths else pretrained.get("members", [pretrained["path"]])
+
+
+def planning_agent(cfg: Config, pretrained: dict, paths: list[str] | None = None
+                   ) -> SimDistAgent:
+    """The agent the planner runs on: the single model, or the members' ensemble."""
+    paths = member_paths(pretrained, paths)
+    if len(paths) == 1:
+        return load_agent(cfg, pretrained, paths[0])
+    members = [load_agent(cfg, pretrained, p).world_model for p in paths]
+    return SimDistAgent(WorldModelEnsemble(members), planner_config=cfg.planner()).to(cfg.device)
 
 
 def evaluate_planner(cfg: Config, agent: SimDistAgent, target: str,
@@ -386,21 +430,39 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
     return torch.cat(batches, 0)
 
 
-def finetune_and_evaluate(cfg: Config, k: int, agent: SimDistAgent, update, optim,
+def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[str] | None,
                           name: str, what: str, sample, stage_dir: Path, logger=None) -> dict:
-    """One method of a round: ``cfg.finetune_updates`` resumable updates, its weights and a
-    self-describing agent file saved, its planner evaluated in the target."""
-    hist = train_resumable(update, sample, cfg.finetune_updates,
-                           {"wm": agent.world_model, "opt": optim}, stage_dir / f"{name}.ckpt",
-                           desc=f"round {k + 1}: {what}",
-                           seed=stage_seed(cfg.seed, f"round_{k + 1}/{name}"),
-                           logger=logger, log_prefix=f"round_{k + 1}/{name}")
-    save_atomic(agent.world_model.state_dict(), stage_dir / f"{name}.pt")
-    return {name: str(stage_dir / f"{name}.pt"),
-            f"{name}_agent": save_agent(cfg, agent, stage_dir / f"{name}_agent.pt",
-                                        target=cfg.target, method=name),
-            f"{name}_eval": evaluate_planner(cfg, agent, cfg.target)[0],
-            f"{name}_loss": mean_metrics(hist)}
+    """One method of a round for every ensemble member: ``cfg.finetune_updates`` resumable
+    updates (``name`` "simdist": dynamics only; "whole": the ablation), weights and a
+    self-describing agent file saved per member, then the members' planner evaluated in
+    the target. Member 0's files keep the single-model names (``simdist.pt``, ...)."""
+    saved, agent_files, losses = [], [], []
+    for i, path in enumerate(member_paths(pretrained, previous)):
+        agent = load_agent(cfg, pretrained, path)
+        update, optim = ((agent.finetune_update, agent.finetune_optim) if name == "simdist"
+                         else (agent.finetune_whole_update, agent.whole_optim))
+        tag = name if i == 0 else f"{name}_member_{i}"
+        hist = train_resumable(update, sample, cfg.finetune_updates,
+                               {"wm": agent.world_model, "opt": optim}, stage_dir / f"{tag}.ckpt",
+                               desc=f"round {k + 1}: {what}" + (f" (member {i})" if i else ""),
+                               seed=stage_seed(cfg.seed, f"round_{k + 1}/{tag}"),
+                               logger=logger, log_prefix=f"round_{k + 1}/{tag}")
+        save_atomic(agent.world_model.state_dict(), stage_dir / f"{tag}.pt")
+        saved.append(str(stage_dir / f"{tag}.pt"))
+        agent_files.append(save_agent(cfg, agent, stage_dir / f"{tag}_agent.pt",
+                                      target=cfg.target, method=name, member=i))
+        losses.append(mean_metrics(hist))
+    return {name: saved[0], f"{name}_members": saved,
+            f"{name}_agent": agent_files[0], f"{name}_member_agents": agent_files,
+            f"{name}_eval": evaluate_planner(cfg, planning_agent(cfg, pretrained, saved),
+                                             cfg.target)[0],
+            f"{name}_loss": losses[0]}
+
+
+def previous_members(previous: dict, name: str) -> list[str]:
+    """A finished round's weights of method ``name``, one per ensemble member (a round
+    recorded before ensembles has one)."""
+    return previous.get(f"{name}_members", [previous[name]])
 
 
 def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_dir: Path,
@@ -408,10 +470,10 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     """One round: collect with the current SimDist planner, finetune all methods, evaluate."""
     budget = round(cfg.budgets_min[k] * STEPS_PER_MINUTE)
     done_before = previous["target_steps"] if previous else 0
-    simdist_agent = load_agent(cfg, pretrained, previous and previous["simdist"])
     data_dir = stage_dir / "data"
     if not data_dir.exists():  # save_memmap renames a complete folder into place
-        fresh = collect_target_data(cfg, simdist_agent, budget - done_before,
+        collector = planning_agent(cfg, pretrained, previous and previous_members(previous, "simdist"))
+        fresh = collect_target_data(cfg, collector, budget - done_before,
                                     seed=cfg.seed + 1000 * (k + 1))
         save_memmap(fresh, data_dir)
     fresh = load_memmap(data_dir)
@@ -424,13 +486,12 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
 
     # SimDist: dynamics only, continuing from the previous round's dynamics.
     results.update(finetune_and_evaluate(
-        cfg, k, simdist_agent, simdist_agent.finetune_update, simdist_agent.finetune_optim,
-        "simdist", "finetune dynamics", sample, stage_dir, logger))
+        cfg, k, pretrained, previous and previous_members(previous, "simdist"), "simdist",
+        "finetune dynamics", sample, stage_dir, logger))
     # Ablation: the whole world model on the same data, same number of updates.
-    whole = load_agent(cfg, pretrained, previous and previous["whole"])
     results.update(finetune_and_evaluate(
-        cfg, k, whole, whole.finetune_whole_update, whole.whole_optim,
-        "whole", "finetune whole model", sample, stage_dir, logger))
+        cfg, k, pretrained, previous and previous_members(previous, "whole"), "whole",
+        "finetune whole model", sample, stage_dir, logger))
 
     # Baseline: continue the expert's SAC on the same target data.
     sac = OfflineSAC(Expert.load(expert_path),
@@ -480,15 +541,33 @@ def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path,
             "loss": mean_metrics(history)}
 
 
+def pretrained_latent_dim(agent: SimDistAgent) -> int:
+    """One member's latent size (the probe's input)."""
+    wm = agent.world_model
+    return wm.members[0].latent_dim if isinstance(wm, WorldModelEnsemble) else wm.latent_dim
+
+
+class FirstMemberProbe(torch.nn.Module):
+    """A latent -> state probe trained on member 0, applied to an (ensemble) latent."""
+
+    def __init__(self, probe: torch.nn.Module, latent_dim: int):
+        super().__init__()
+        self.probe, self.latent_dim = probe, latent_dim
+
+    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+        return self.probe(latent[..., :self.latent_dim])
+
+
 def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out: Path) -> dict:
     """rerun recordings of one target episode before and after dynamics finetuning."""
     paths = {}
-    for label, weights_path in (("before", None), ("after", final["simdist"])):
-        agent = load_agent(cfg, pretrained, weights_path)
-        probe_net = StateDecoder(agent.world_model.latent_dim, probe["state_dim"], hidden=256,
+    for label, weights in (("before", None), ("after", previous_members(final, "simdist"))):
+        agent = planning_agent(cfg, pretrained, weights)
+        # the probe reads member 0's latent (the first slice of an ensemble's)
+        probe_net = StateDecoder(pretrained_latent_dim(agent), probe["state_dim"], hidden=256,
                                  layers=2)
         probe_net.load_state_dict(load_checkpoint(probe["path"]))
-        probe_net.to(cfg.device)
+        probe_net = FirstMemberProbe(probe_net, pretrained_latent_dim(agent)).to(cfg.device)
         env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, cfg.seed + 10_000,
                              task=cfg.task,
                              primers=[agent.make_primer(cfg.planner().latency_compensation)])
@@ -539,7 +618,7 @@ def run(cfg: Config) -> dict:
           + ", ".join(f"{e:.2f}" for e in pretrained["heldout_prediction_error_rel"]))
 
     def zero_shot(d):
-        agent = load_agent(cfg, pretrained)
+        agent = planning_agent(cfg, pretrained)
         return {domain: evaluate_planner(cfg, agent, domain)[0]
                 for domain in tqdm(["sim", cfg.target], desc="planner zero-shot")}
 
