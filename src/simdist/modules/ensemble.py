@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from simdist.modules.checks import check_last_dims
+from simdist.modules.simdist_model import LatentModelVerbs
 
 
 class _PerMember(nn.Module):
@@ -53,7 +54,7 @@ class _Encoders(nn.Module):
         return torch.cat([enc.encode_sequence(obs, is_init) for enc in self.parts], -1)
 
 
-class WorldModelEnsemble(nn.Module):
+class WorldModelEnsemble(LatentModelVerbs, nn.Module):
     """K SimDist world models as one model for planning.
 
     The ensemble's latent is the members' latents concatenated (``[..., K * L]``); its
@@ -111,32 +112,3 @@ class WorldModelEnsemble(nn.Module):
 
     def __len__(self) -> int:
         return len(self.members)
-
-    # -- the verbs of SimDistWorldModel ---------------------------------------------------
-    def encode(self, window: torch.Tensor) -> torch.Tensor:
-        return self.encoder(window)
-
-    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
-        return self.encoder.encode_sequence(obs, is_init)
-
-    def next(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return self.dynamics(latent, action)
-
-    def rollout(self, latent: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-        """Predicts ``z_{1..H}`` from ``z_0 [..., K * L]`` and ``actions [..., H, A]``."""
-        check_last_dims("latent", latent, (self.latent_dim,))
-        check_last_dims("actions", actions, (self.action_dim,))
-        out = []
-        for i in range(actions.shape[-2]):
-            latent = self.dynamics(latent, actions[..., i, :])
-            out.append(latent)
-        return torch.stack(out, -2)
-
-    def reward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return self.reward_head(latent, action)
-
-    def value(self, latent: torch.Tensor) -> torch.Tensor:
-        return self.value_head(latent)
-
-    def policy(self, latent: torch.Tensor) -> torch.Tensor:
-        return self.policy_head(latent)

@@ -43,7 +43,41 @@ class MLPDynamics(nn.Module):
         return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z
 
 
-class SimDistWorldModel(nn.Module):
+class LatentModelVerbs:
+    """The verbs of a SimDist latent model over its parts ``encoder``, ``dynamics``,
+    ``reward_head``, ``value_head`` and ``policy_head`` (shared by
+    :class:`SimDistWorldModel` and :class:`~simdist.modules.WorldModelEnsemble`)."""
+
+    def encode(self, window: torch.Tensor) -> torch.Tensor:
+        return self.encoder(window)
+
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
+        return self.encoder.encode_sequence(obs, is_init)
+
+    def next(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.dynamics(latent, action)
+
+    def rollout(self, latent: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """Predicts ``z_{1..H}`` from ``z_0 [..., L]`` and ``actions [..., H, A]``."""
+        check_last_dims("latent", latent, (self.latent_dim,))
+        check_last_dims("actions", actions, (self.action_dim,))
+        out = []
+        for i in range(actions.shape[-2]):
+            latent = self.dynamics(latent, actions[..., i, :])
+            out.append(latent)
+        return torch.stack(out, -2)
+
+    def reward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.reward_head(latent, action)
+
+    def value(self, latent: torch.Tensor) -> torch.Tensor:
+        return self.value_head(latent)
+
+    def policy(self, latent: torch.Tensor) -> torch.Tensor:
+        return self.policy_head(latent)
+
+
+class SimDistWorldModel(LatentModelVerbs, nn.Module):
     """Encoder, dynamics, reward ``r(z, a)``, value ``V(z)`` and policy prior ``pi(z)``.
 
     Verbs (TD-MPC2 style): :meth:`encode`, :meth:`encode_sequence`, :meth:`next`,
@@ -88,32 +122,3 @@ class SimDistWorldModel(nn.Module):
 
     def parts(self) -> dict[str, nn.Module]:
         return {name: getattr(self, name) for name in self.PARTS}
-
-    # -- verbs ----------------------------------------------------------------------------
-    def encode(self, window: torch.Tensor) -> torch.Tensor:
-        return self.encoder(window)
-
-    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
-        return self.encoder.encode_sequence(obs, is_init)
-
-    def next(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return self.dynamics(latent, action)
-
-    def rollout(self, latent: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-        """Predicts ``z_{1..H}`` from ``z_0 [..., L]`` and ``actions [..., H, A]``."""
-        check_last_dims("latent", latent, (self.latent_dim,))
-        check_last_dims("actions", actions, (self.action_dim,))
-        out = []
-        for i in range(actions.shape[-2]):
-            latent = self.dynamics(latent, actions[..., i, :])
-            out.append(latent)
-        return torch.stack(out, -2)
-
-    def reward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        return self.reward_head(latent, action)
-
-    def value(self, latent: torch.Tensor) -> torch.Tensor:
-        return self.value_head(latent)
-
-    def policy(self, latent: torch.Tensor) -> torch.Tensor:
-        return self.policy_head(latent)
