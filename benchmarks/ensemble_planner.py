@@ -19,6 +19,9 @@ each member's dynamics alone is finetuned on all data so far (the recipe's
     python benchmarks/ensemble_planner.py --run RUN --chain OUT \\
         --members pretrained OTHER1/stages/pretrain/world_model.pt OTHER2/...
 
+``--pessimism 0 1`` also scores candidates by a lower confidence bound (the members' mean
+reward and value minus that many standard deviations over members).
+
 The members must share the run's model config (size, history). Costs K x one model's
 planner time (and K x its finetuning updates).
 """
@@ -108,6 +111,9 @@ def main(argv=None):
     parser.add_argument("--alone", action="store_true", help="also evaluate each member alone")
     parser.add_argument("--chain", default=None, metavar="OUT",
                         help="run SimDist's target rounds with the ensemble (see above)")
+    parser.add_argument("--pessimism", type=float, nargs="+", default=[0.0],
+                        help="evaluate the ensemble scoring mean - this x the members' std "
+                             "of reward and value (one row per value; not with --chain)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     cfg, pretrained = recipe.load_finished_run(
@@ -122,8 +128,10 @@ def main(argv=None):
     print("| planner's model | domain | % of commanded distance [95% CI] (IQM) | s |")
     print("| --- | --- | --- | --- |")
     for domain in args.domains:
-        print(evaluate(cfg, WorldModelEnsemble(members), domain, f"ensemble of {len(members)}"),
-              flush=True)
+        for lam in args.pessimism:
+            name = f"ensemble of {len(members)}" + (f", pessimism {lam:g}" if lam else "")
+            print(evaluate(cfg, WorldModelEnsemble(members, pessimism=lam), domain, name),
+                  flush=True)
         if args.alone:
             for path, member in zip(args.members, members):
                 print(evaluate(cfg, member, domain, path), flush=True)

@@ -42,6 +42,28 @@ def test_verbs_combine_members_by_hand():
         [m.encode_sequence(obs, is_init) for m in members], -1))
 
 
+def test_pessimism_lowers_the_mean_by_the_members_spread():
+    members = _members()
+    ensemble = WorldModelEnsemble(members, pessimism=0.5)
+    window, action = torch.randn(5, members[0].encoder.history, OBS), torch.randn(5, ACT)
+    z = ensemble.encode(window)
+    parts = [m.encode(window) for m in members]
+    rewards = torch.stack([m.reward(p, action) for m, p in zip(members, parts)])
+    values = torch.stack([m.value(p) for m, p in zip(members, parts)])
+    # population std over three members, by hand
+    for got, each in ((ensemble.reward(z, action), rewards), (ensemble.value(z), values)):
+        mean = each.sum(0) / 3
+        std = (((each - mean) ** 2).sum(0) / 3).sqrt()
+        assert std.min() > 0
+        torch.testing.assert_close(got, mean - 0.5 * std)
+    # the prior's proposal is not a score: still the plain mean
+    torch.testing.assert_close(ensemble.policy(z),
+                               sum(m.policy(p) for m, p in zip(members, parts)) / 3)
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="pessimism"):
+            WorldModelEnsemble(members, pessimism=bad)
+
+
 def test_members_keep_their_own_parameters():
     members = _members(2)
     ensemble = WorldModelEnsemble(members)

@@ -14,7 +14,8 @@ ROOT = Path(__file__).resolve().parents[2]
 RECIPE = [sys.executable, str(ROOT / "recipes" / "twist_dmc.py")]
 METHODS = ["Oracle (state teacher)", "TWIST (student)", "TWIST w/o imagined alignment",
            "TWIST w/o action noise", "Dreamer from pixels + DR", "Dreamer from pixels, no DR",
-           "Dreamer State Recon. + DR", "Asymmetric SAC + DR"]
+           "Dreamer State Recon. + DR", "Asymmetric SAC + DR", "zero action (reference)",
+           "random actions (reference)"]
 
 
 def _run(*args, timeout=300):
@@ -65,6 +66,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert recon_agent["config"]["reconstruct_key"] == "state"
     # the Asymmetric SAC baseline trained (2 episodes x 20 / 10 updates) from stored steps
     assert run["Asymmetric SAC + DR"]["updates"] == 4
+    # the blind references (zero and uniform random actions) ran on the Oracle's seeds
+    assert run["zero action (reference)"]["returns"] != run["random actions (reference)"]["returns"]
     sac_file = tmp_path / "stages" / "cartpole-balance_s0_asymmetric_sac" / "sac_agent.pt"
     assert load_agent(sac_file).checkpoint_meta["task"] == "cartpole-balance"
     assert (tmp_path / "stages" / "cartpole-balance_s0_asymmetric_sac" / "episodes" / "00001" /
@@ -75,7 +78,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
 
     again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1)  # in-process
     assert again.returncode == 0, again.stderr
-    assert again.stdout.count("already done") == 10  # 9 stages per task-seed + recording
+    assert again.stdout.count("already done") == 11  # 10 stages per task-seed + recording
     changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
     assert changed.returncode != 0 and "different config" in changed.stderr
 

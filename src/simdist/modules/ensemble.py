@@ -15,6 +15,8 @@ its own losses and optimisers); the ensemble is for planning.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -24,17 +26,24 @@ from simdist.modules.simdist_model import LatentModelVerbs
 
 class _PerMember(nn.Module):
     """Calls member ``i``'s part on slice ``i`` of a concatenated latent, then
-    concatenates (latents) or averages (rewards, values, actions) the outputs."""
+    concatenates (latents) or averages (rewards, values, actions) the outputs; with
+    ``pessimism`` > 0 an average is lowered by that many standard deviations over members."""
 
-    def __init__(self, parts, latent_dim: int, combine: str):
+    def __init__(self, parts, latent_dim: int, combine: str, pessimism: float = 0.0):
         super().__init__()
         self.parts, self.member_dim, self.combine = nn.ModuleList(parts), latent_dim, combine
         self.latent_dim = latent_dim * len(parts)
+        self.pessimism = pessimism
 
     def forward(self, latent: torch.Tensor, *rest: torch.Tensor) -> torch.Tensor:
         check_last_dims("latent", latent, (self.latent_dim,))
         outs = [part(z, *rest) for part, z in zip(self.parts, latent.split(self.member_dim, -1))]
-        return torch.cat(outs, -1) if self.combine == "cat" else torch.stack(outs).mean(0)
+        if self.combine == "cat":
+            return torch.cat(outs, -1)
+        outs = torch.stack(outs)
+        if self.pessimism:
+            return outs.mean(0) - self.pessimism * outs.std(0, correction=0)
+        return outs.mean(0)
 
 
 class _Encoders(nn.Module):
@@ -71,9 +80,13 @@ class WorldModelEnsemble(LatentModelVerbs, nn.Module):
     Args:
         members: SimDist world models with the same observation size, history, latent
             size and action size (e.g. the same config pretrained from different seeds).
+        pessimism: score a candidate by the members' mean reward and value *minus* this
+            many standard deviations over members (a lower confidence bound: plans the
+            members disagree on rank lower). 0 (default): the plain mean.
 
     Raises:
-        ValueError: fewer than one member, or members that disagree on those sizes.
+        ValueError: fewer than one member, members that disagree on those sizes, or a
+            negative or non-finite ``pessimism``.
 
     Examples:
         >>> from simdist.modules import SimDistWorldModel, LatentMPPIPlanner, PlannerConfig
@@ -86,11 +99,13 @@ class WorldModelEnsemble(LatentModelVerbs, nn.Module):
         ...     ensemble, PlannerConfig(horizon=3, num_samples=16, num_elites=4))
     """
 
-    def __init__(self, members):
+    def __init__(self, members, pessimism: float = 0.0):
         super().__init__()
         members = list(members)
         if not members:
             raise ValueError("WorldModelEnsemble needs at least one member")
+        if not (math.isfinite(pessimism) and pessimism >= 0):
+            raise ValueError(f"pessimism must be a finite number >= 0, got {pessimism}")
         first = members[0]
 
         def sizes(m):
@@ -105,8 +120,9 @@ class WorldModelEnsemble(LatentModelVerbs, nn.Module):
         self.members = nn.ModuleList(members)
         self.encoder = _Encoders([m.encoder for m in members])
         self.dynamics = _PerMember([m.dynamics for m in members], L, "cat")
-        self.reward_head = _PerMember([m.reward_head for m in members], L, "mean")
-        self.value_head = _PerMember([m.value_head for m in members], L, "mean")
+        self.reward_head = _PerMember([m.reward_head for m in members], L, "mean", pessimism)
+        self.value_head = _PerMember([m.value_head for m in members], L, "mean", pessimism)
+        self.pessimism = pessimism
         self.policy_head = _PerMember([m.policy_head for m in members], L, "mean")
         self.latent_dim, self.action_dim = L * len(members), first.action_dim
 

@@ -5,7 +5,9 @@ finished stages and a killed stage resumes from its last checkpoint):
 
 1. ``teacher``: Dreamer on privileged state, collecting online; every step also records
    the domain-randomised image (randomised every step), building ``D = {(s, o, a, r)}``.
-2. ``oracle``: the teacher itself, evaluated (the upper bound).
+2. ``oracle``: the teacher itself, evaluated (the upper bound); ``references``: zero and
+   uniform random actions on the same seeds, what a return is worth on the task (doing
+   nothing scores 750 on cartpole-balance, where the pole swings back past upright).
 3. ``twist`` and its ablations (``no_imagined``, ``no_noise``): an image RSSM trained
    with the teacher frozen on slices of ``D`` with latent distillation (Eq. 3) plus
    imagined-rollout alignment (Eq. 4); deployed as pixels -> student latent -> the
@@ -46,9 +48,9 @@ from simdist.agents import (AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgen
                              DreamerConfig, TwistConfig, TwistStudent)
 from simdist.envs import TASKS, VisualRandomisation
 from simdist.modules import RSSM_SIZES, DreamerWorldModel, PixelEncoder
-from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
-                               evaluate_returns, load_episodes, mean_metrics, stage_seed,
-                               train_dreamer_online, train_resumable)
+from simdist.pipelines import (EpisodeReplay, OnlineConfig, ReferencePolicy, control_env,
+                               dreamer_keys, evaluate_returns, load_episodes, mean_metrics,
+                               stage_seed, train_dreamer_online, train_resumable)
 from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
 from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_jobs,
@@ -62,6 +64,8 @@ STUDENTS = {"twist": (TWIST, {}),
             "no_imagined": ("TWIST w/o imagined alignment", {"imagined": False}),
             "no_noise": ("TWIST w/o action noise", {"action_noise_std": 0.0})}
 ASYMMETRIC_SAC = ("asymmetric_sac", "Asymmetric SAC + DR")  # (stage suffix, table name)
+# ReferencePolicy kind -> table name: blind policies that say what a return is worth
+REFERENCES = {"zero": "zero action (reference)", "uniform": "random actions (reference)"}
 # stage suffix -> (table name, visual randomisation while training)
 PIXEL_DREAMERS = {"dreamer_dr": ("Dreamer from pixels + DR", VisualRandomisation.training()),
                   "dreamer_no_dr": ("Dreamer from pixels, no DR", None),
@@ -351,6 +355,14 @@ def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> 
             "last": mean_metrics(out["history"])}
 
 
+def references_stage(cfg: Config, task: str, seed: int) -> dict:
+    """Zero and uniform random actions on the Oracle's evaluation seeds (state env: a
+    blind policy's return does not depend on the pixels)."""
+    action_dim = state_dim(task)[1]
+    return {kind: evaluate(cfg, task, seed, ReferencePolicy(kind, action_dim), None,
+                           pixels=False) for kind in REFERENCES}
+
+
 def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path) -> dict:
     agent = load_teacher(cfg, task, teacher)
     twist = new_student(cfg, task, agent, {})
@@ -387,6 +399,7 @@ def teacher_chain(cfg: Config, task: str, seed: int) -> None:
                         pixels=False)
 
     _stage(runner, f"{key}_oracle", oracle)
+    _stage(runner, f"{key}_references", lambda d: references_stage(cfg, task, seed))
     for suffix, (_, changes) in STUDENTS.items():
         _stage(runner, f"{key}_{suffix}",
                lambda d, c=changes: student_stage(cfg, task, seed, teacher, c, d))
@@ -431,6 +444,9 @@ def main(argv=None):
             for suffix, (name, _) in {**STUDENTS, **PIXEL_DREAMERS}.items():
                 runs[name] = runner.result(f"{key}_{suffix}")
             runs[ASYMMETRIC_SAC[1]] = runner.result(f"{key}_{ASYMMETRIC_SAC[0]}")
+            references = runner.result(f"{key}_references")
+            for kind, name in REFERENCES.items():
+                runs[name] = references[kind]
             records[key] = {"teacher": teacher, **runs}
             for name, r in runs.items():
                 entry = methods.setdefault(name, {"returns": [], "seed_means": [],
