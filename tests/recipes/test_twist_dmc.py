@@ -225,3 +225,20 @@ def test_a_run_killed_inside_the_online_teacher_resumes_to_the_uninterrupted_res
     assert b["results"] == a["results"]
     assert b["runs"]["cartpole-balance_s0"]["teacher"]["episode_returns"] == \
         a["runs"]["cartpole-balance_s0"]["teacher"]["episode_returns"]
+
+
+def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path):
+    """benchmarks/twist_teacher_budget.py: one Oracle figure per chunk, the run resumed
+    between chunks (more updates at each point), the blind references beside it."""
+    out = tmp_path / "budget"
+    run = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "twist_teacher_budget.py"), "--preset",
+         "tiny", "--steps", "40", "--chunk", "20", "--out", str(out)],
+        capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    result = json.loads((out / "cartpole-balance.json").read_text())
+    curve = result["curves"]["0"]
+    assert [p["steps"] for p in curve] == [20, 40]
+    assert 0 < curve[0]["updates"] < curve[1]["updates"]
+    assert set(result["references"]["0"]) == {"zero", "uniform"}
+    assert (out / "cartpole-balance_s0" / "agent.pt").exists()

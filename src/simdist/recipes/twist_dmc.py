@@ -83,7 +83,9 @@ class Config:
     seeds: list[int] = field(default_factory=lambda: [0])  # one chain of stages per task and seed
     model_size: str = "compact"  # RSSM size of teacher, student and pixel Dreamers
     # online budget: the same environment steps for the teacher and both pixel Dreamers
-    env_steps: int = 6000  # measured: 4000 learns on one seed of two, 6000 on the one tried
+    # Measured on cartpole-balance (state teacher, 10 evaluation episodes, seeds 0 / 1):
+    # Oracle 680 / 612 at 6000 steps, *below* doing nothing (746); 919 / 904 at 10000.
+    env_steps: int = 10000
     prefill_steps: int = 1000  # random-action steps before the first update
     train_every: int = 2  # teacher: one update per 2 agent steps (measured: 8 does not learn)
     # pixel Dreamers: an update costs ~4x the teacher's on CPU, so they get fewer updates
