@@ -242,3 +242,13 @@ def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path):
     assert 0 < curve[0]["updates"] < curve[1]["updates"]
     assert set(result["references"]["0"]) == {"zero", "uniform"}
     assert (out / "cartpole-balance_s0" / "agent.pt").exists()
+
+
+def test_no_baselines_runs_only_the_teacher_chain(tmp_path):
+    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
+                "--no-record")
+    assert proc.returncode == 0, proc.stderr
+    task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
+    assert list(task) == [m for m in METHODS if "Dreamer" not in m and "SAC" not in m]
+    assert not list((tmp_path / "stages").glob("*dreamer*"))
+    assert not list((tmp_path / "stages").glob("*sac*"))

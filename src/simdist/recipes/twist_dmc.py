@@ -140,6 +140,11 @@ class Config:
     # replay stay on the CPU. Not part of the results: a run may resume on another device.
     device: str = "cpu"
 
+    # False: only the teacher chain (teacher, Oracle, references, TWIST and its two
+    # ablations), without the pixel-Dreamer and Asymmetric-SAC baselines, whose chains
+    # cost more CPU time than the rest. Not part of the results (it picks rows, not
+    # figures): a later run with True into the same folder adds the baselines.
+    baselines: bool = True
     # stages run side by side in this many processes (teacher chain beside the pixel
     # Dreamers). Not part of the results.
     jobs: int = min(2, os.cpu_count() or 1)  # 2 on two or more cores
@@ -161,8 +166,9 @@ class Config:
                        "sac_train_every", "sac_batch",
                        "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
                        "actor_lr", "critic_lr", "jobs")
-        check(isinstance(self.train_camera, bool), "train_camera",
-              f"must be true or false, got {self.train_camera!r}")
+        for flag in ("train_camera", "baselines"):
+            check(isinstance(getattr(self, flag), bool), flag,
+                  f"must be true or false, got {getattr(self, flag)!r}")
         check_positive(self, "prefill_steps", "student_updates", "action_noise_std",
                        "student_shift_pad", "student_rotate_deg", allow_zero=True)
         check(self.student_depth is None or self.student_depth > 0, "student_depth",
@@ -381,7 +387,8 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 
 # -- the recipe -------------------------------------------------------------------------
 def stage_runner(cfg: Config) -> StageRunner:
-    return StageRunner(cfg.output_dir, cfg, runtime_keys=("device", "jobs", "logger"))
+    return StageRunner(cfg.output_dir, cfg,
+                       runtime_keys=("device", "jobs", "logger", "baselines"))
 
 
 def _stage(runner: StageRunner, name: str, fn) -> dict:
@@ -430,9 +437,13 @@ def main(argv=None):
 
     # Longest chains first, so that two processes finish close together.
     chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
-    chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
-               for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
-    chains += [(sac_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
+    stages = {suffix: name for suffix, (name, _) in STUDENTS.items()}  # stage -> table row
+    if cfg.baselines:
+        chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
+                   for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
+        chains += [(sac_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
+        stages.update({suffix: name for suffix, (name, _) in PIXEL_DREAMERS.items()})
+        stages[ASYMMETRIC_SAC[0]] = ASYMMETRIC_SAC[1]
     start = time.perf_counter()
     run_jobs(chains, cfg.jobs)
 
@@ -443,9 +454,8 @@ def main(argv=None):
             key = f"{task}_s{seed}"
             teacher = runner.result(f"{key}_teacher")
             runs = {ORACLE: runner.result(f"{key}_oracle")}
-            for suffix, (name, _) in {**STUDENTS, **PIXEL_DREAMERS}.items():
+            for suffix, name in stages.items():
                 runs[name] = runner.result(f"{key}_{suffix}")
-            runs[ASYMMETRIC_SAC[1]] = runner.result(f"{key}_{ASYMMETRIC_SAC[0]}")
             references = runner.result(f"{key}_references")
             for kind, name in REFERENCES.items():
                 runs[name] = references[kind]
