@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 
-from simdist.pipelines import (ReferencePolicy, control_env, dreamer_keys, stage_seed,
+from simdist.pipelines import (control_env, dreamer_keys, stage_seed,
                                train_dreamer_online)
 from simdist.recipes import twist_dmc as recipe
 
