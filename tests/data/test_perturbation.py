@@ -79,6 +79,30 @@ def test_noised_fraction_is_the_steady_state_from_the_first_step():
     assert (~noisy.any(1)).mean() < 0.5
 
 
+def test_dither_rides_on_pauses_of_perturbed_episodes_only():
+    schedule = PerturbationSchedule(std_range=(2.0, 2.0), burst_range=(2, 10), pause_range=(5, 30),
+                                    never_noised_fraction=0.3, dither_std=0.2,
+                                    action_low=-100, action_high=100)
+    noisy, _, actions = _simulate(schedule, envs=400, steps=400)
+    never = torch.from_numpy(~noisy.any(1))
+    pause = torch.from_numpy(~noisy) & ~never[:, None]
+    # outside bursts: zero-mean noise of the configured std on every joint, still the expert's
+    dithered = actions[pause]
+    assert len(dithered) > 10_000
+    assert torch.allclose(dithered.std(0), torch.full((3,), 0.2), rtol=0.03)
+    assert dithered.mean(0).abs().max() < 0.01
+    # bursts keep their own std (2.0), never-perturbed episodes stay exactly the expert's
+    assert torch.allclose(actions[torch.from_numpy(noisy)].std(0), torch.full((3,), 2.0), rtol=0.05)
+    assert (actions[never] == 0).all()
+    # dither 0 is the reference schedule, draw for draw
+    reference = PerturbationSchedule(std_range=(2.0, 2.0), burst_range=(2, 10), pause_range=(5, 30),
+                                     never_noised_fraction=0.3, action_low=-100, action_high=100)
+    ref_noisy, _, ref_actions = _simulate(reference, envs=400, steps=400)
+    assert (ref_noisy == noisy).all()
+    assert torch.equal(ref_actions[torch.from_numpy(noisy)], actions[torch.from_numpy(noisy)])
+    assert (ref_actions[pause] == 0).all()
+
+
 def test_perturbed_actions_stay_inside_per_joint_bounds():
     low, high = torch.tensor([-1.0, -1.0, -0.8]), torch.tensor([1.0, 1.1, 0.8])
     module = ActionPerturbation(3, PerturbationSchedule(std_range=(2.0, 2.5), burst_range=(5, 5),
@@ -157,6 +181,8 @@ def test_works_with_parallel_workers():
     (dict(std_range=(1.0, 0.5)), "std_range range is inverted"),
     (dict(pause_range=(2.5, 4)), "whole steps"),
     (dict(never_noised_fraction=1.5), "never_noised_fraction"),
+    (dict(dither_std=-0.1), "dither_std"),
+    (dict(dither_std=float("nan")), "dither_std"),
 ])
 def test_bad_schedule_values(kwargs, message):
     with pytest.raises(ValueError, match=message):

@@ -136,8 +136,15 @@ def test_model_history_sets_the_encoders_window():
     assert default.world_model.encoder.history == 2  # the size's own
 
 
+def test_dataset_dither_reaches_the_perturbation_schedule():
+    from simdist.recipes.simdist_quadruped import Config, dataset_config
+    assert dataset_config(Config(dataset_dither_std=0.3)).schedule.dither_std == 0.3
+    assert dataset_config(Config()).schedule.dither_std == 0.0  # the reference schedule
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--episodes", "0"], "episodes: must be > 0"),
+    (["--dataset-dither-std", "-0.5"], "dither_std must be finite and >= 0"),
     (["--budgets-min", "2", "1"], "budgets_min: must be positive and increasing"),
     (["--planner-elites", "100"], "num_elites (100) must be <= num_samples"),
     (["--model-size", "huge"], "model_size: unknown size 'huge'"),

@@ -46,6 +46,11 @@ class PerturbationSchedule:
     burst_range: tuple[int, int] = (1, 50)
     pause_range: tuple[int, int] = (25, 500)
     never_noised_fraction: float = 0.025
+    # Gaussian noise of this std on every step *outside* the bursts (0: the reference
+    # schedule). Bursts (std up to 2.5, clamped) teach what large disturbances do; the
+    # planner compares plans that differ by ~0.3 around the prior, and a dynamics model
+    # only learns such small action effects where the data varies the action that little.
+    dither_std: float = 0.0
     action_low: float = -1.0
     action_high: float = 1.0
 
@@ -59,6 +64,8 @@ class PerturbationSchedule:
         if not 0.0 <= self.never_noised_fraction <= 1.0 or math.isnan(self.never_noised_fraction):
             raise ValueError("never_noised_fraction must lie in [0, 1], got "
                              f"{self.never_noised_fraction}")
+        if not (math.isfinite(self.dither_std) and self.dither_std >= 0.0):
+            raise ValueError(f"dither_std must be finite and >= 0, got {self.dither_std}")
         if not self.action_low < self.action_high:
             raise ValueError("action_low must be < action_high")
 
@@ -188,7 +195,11 @@ class ActionPerturbation(TensorDictModuleBase):
         noisy = on & ~never
         eps = torch.randn(action.shape, generator=self.generator).to(dev)
         low, high = self.action_low.to(dev), self.action_high.to(dev)
-        applied = torch.where(noisy, action + std * eps, action).clamp(low, high)
+        # Dither (if any) rides on every step outside a burst of a perturbed episode; such
+        # steps stay ``expert_active``: their BC target is the expert's action plus zero-mean
+        # noise, whose regression target is still the expert's mean action.
+        dither = s.dither_std * (~never).to(action.dtype)
+        applied = torch.where(noisy, action + std * eps, action + dither * eps).clamp(low, high)
         td.set(self.action_key, applied)
         td.set("expert_active", ~noisy)
         for key, value in zip(STATE_KEYS, (std, on, remaining, never)):

@@ -37,7 +37,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from simdist.agents import SimDistAgent, SimDistConfig
-from simdist.data import DatasetConfig, generate_dataset, generate_shard, load_dataset
+from simdist.data import DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard, load_dataset
 from simdist.data.dataset import read_dataset_meta
 from simdist.envs import TASKS, describe_ranges, get_target
 from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
@@ -97,6 +97,10 @@ class Config:
     dataset_episodes: int = 1536
     dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
     dataset_workers: int = 1  # processes generating shards
+    # Gaussian action noise on every step outside the perturbation bursts
+    # (PerturbationSchedule.dither_std; 0: the reference schedule), so the dynamics see
+    # small action changes like the planner's proposal noise
+    dataset_dither_std: float = 0.0
     model_size: str = "small"  # world-model size (simdist.modules.SIMDIST_SIZES)
     # observation steps the encoder reads (0: the size's own, 4 for "small"; the SimDist
     # reference: 25)
@@ -266,7 +270,8 @@ def expert_zero_shot_stage(cfg: Config, expert_path: str) -> dict:
 def dataset_config(cfg: Config) -> DatasetConfig:
     return DatasetConfig(task=cfg.data_task, episodes=cfg.dataset_episodes,
                          episode_steps=cfg.episode_steps, shard_episodes=cfg.dataset_shard_episodes,
-                         num_workers=cfg.dataset_workers, seed=cfg.seed)
+                         num_workers=cfg.dataset_workers, seed=cfg.seed,
+                         schedule=PerturbationSchedule(dither_std=cfg.dataset_dither_std))
 
 
 def load_experts(expert_path: str) -> tuple[Expert, list[Expert]]:
