@@ -99,7 +99,8 @@ class Config:
     dataset_workers: int = 1  # processes generating shards
     # Gaussian action noise on every step outside the perturbation bursts
     # (PerturbationSchedule.dither_std; 0: the reference schedule), so the dynamics see
-    # small action changes like the planner's proposal noise
+    # small action changes like the planner's proposal noise. 0.3 measured (3 seeds):
+    # slippery_slope 8 min 18% either way (benchmarks/README.md, "Small action noise")
     dataset_dither_std: float = 0.0
     model_size: str = "small"  # world-model size (simdist.modules.SIMDIST_SIZES)
     # observation steps the encoder reads (0: the size's own, 4 for "small"; the SimDist
