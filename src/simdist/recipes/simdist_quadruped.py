@@ -37,7 +37,8 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from simdist.agents import SimDistAgent, SimDistConfig
-from simdist.data import DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard, load_dataset
+from simdist.data import (DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
+                          load_dataset)
 from simdist.data.dataset import read_dataset_meta
 from simdist.envs import TASKS, describe_ranges, get_target
 from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
