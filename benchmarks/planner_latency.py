@@ -58,12 +58,16 @@ def torchrl_planner(wm: SimDistWorldModel, cfg: PlannerConfig) -> MPPIPlanner:
                        num_candidates=cfg.num_samples, top_k=cfg.num_elites)
 
 
-def latency_ms(fn, calls: int) -> float:
+def latency_ms(fn, calls: int, device: torch.device = torch.device("cpu")) -> float:
+    # CUDA work is asynchronous: wait for it on both sides of every timed call
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     fn()
     times = []
     for _ in range(calls):
+        sync()
         start = time.perf_counter()
         fn()
+        sync()
         times.append(time.perf_counter() - start)
     return 1e3 * statistics.median(times)
 
@@ -77,10 +81,11 @@ def main():
     parser.add_argument("--configs", nargs="+", default=None,
                         help="only these configs (default: all)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--size", default="small", help="world-model size (tiny, small, paper)")
     args = parser.parse_args()
     torch.manual_seed(0)
     device = torch.device(args.device)
-    wm = SimDistWorldModel.build(obs_dim=89, action_dim=12, size="small").to(device).eval()
+    wm = SimDistWorldModel.build(obs_dim=89, action_dim=12, size=args.size).to(device).eval()
     # "recipe": the planner of recipes/simdist_quadruped.py's default preset (90% of the
     # samples proposed by the policy prior, scored once per step; TorchRL's planner has no
     # prior, so it samples all 64 at random at the same H x N x iterations).
@@ -88,7 +93,7 @@ def main():
                "recipe": PlannerConfig(horizon=10, num_samples=64, iterations=3, num_elites=8,
                                        policy_fraction=0.9, policy_noise=0.3)}
     print(f"device {device}, torch threads {torch.get_num_threads()}, latent {wm.latent_dim}, "
-          f"actions {wm.action_dim}, MLP width 256")
+          f"actions {wm.action_dim}, size {args.size!r}")
     print(f"{'config':18s} {'H x N x iters (K)':>20s} {'simdist ms':>11s} {'compiled ms':>12s} "
           f"{'torchrl ms':>11s} {'speed-up':>9s}")
     if args.configs:
@@ -98,7 +103,7 @@ def main():
         latent = torch.rand(args.batch, wm.latent_dim, device=device)
         ours = LatentMPPIPlanner.from_world_model(wm, cfg, seed=0)
         td = TensorDict({"latent": latent}, [args.batch], device=device)
-        ours_ms = latency_ms(lambda: ours(td.clone()), calls)
+        ours_ms = latency_ms(lambda: ours(td.clone()), calls, device)
         compiled_ms = float("nan")
         # The reference config is a GPU config: compiling its 8 x 25 unrolled loop on a
         # 2-core CPU takes far longer than it could ever save, so only the CPU one is.
@@ -107,10 +112,10 @@ def main():
             start = time.perf_counter()
             compiled(td.clone())
             print(f"  ({name}: compile warm-up {time.perf_counter() - start:.0f} s)")
-            compiled_ms = latency_ms(lambda: compiled(td.clone()), calls)
+            compiled_ms = latency_ms(lambda: compiled(td.clone()), calls, device)
         theirs = torchrl_planner(wm, cfg).to(device)
         with torch.no_grad():
-            theirs_ms = latency_ms(lambda: theirs(td.clone()), max(2, calls // 3))
+            theirs_ms = latency_ms(lambda: theirs(td.clone()), max(2, calls // 3), device)
         dims = f"{cfg.horizon} x {cfg.num_samples} x {cfg.iterations} ({cfg.num_elites})"
         print(f"{name:18s} {dims:>20s} {ours_ms:11.1f} {compiled_ms:12.1f} {theirs_ms:11.1f} "
               f"{theirs_ms / ours_ms:8.1f}x")

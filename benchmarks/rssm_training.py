@@ -10,6 +10,7 @@ of the plain update (compile time reported separately).
 Usage:
     python benchmarks/rssm_training.py                 # batch 16 x 50, "small" RSSM
     python benchmarks/rssm_training.py --quick
+    python benchmarks/rssm_training.py --device cuda --size paper --batch 16 --length 64
 """
 
 from __future__ import annotations
@@ -26,13 +27,13 @@ from simdist.objectives import DreamerWorldModelLoss
 from simdist.objectives.dreamer import balanced_kl
 
 
-def make_batch(B, T, state_dim, action_dim):
+def make_batch(B, T, state_dim, action_dim, device="cpu"):
     from tensordict import TensorDict
     return TensorDict({
         "action": torch.rand(B, T, action_dim) * 2 - 1,
         "is_init": torch.zeros(B, T, 1, dtype=torch.bool),
         "next": {"state": torch.randn(B, T, state_dim), "reward": torch.randn(B, T, 1)},
-    }, [B, T])
+    }, [B, T]).to(device)
 
 
 def plain_update(wm, opt, state, action, reward, is_init):
@@ -53,13 +54,19 @@ def main():
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--compile", action="store_true")
     parser.add_argument("--size", default="small")
+    parser.add_argument("--batch", type=int, default=16, help="slices per update")
+    parser.add_argument("--length", type=int, default=50, help="steps per slice")
+    parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
-    B, T, S, A = 16, 50, 5, 1
+    B, T, S, A = args.batch, args.length, 5, 1
     updates, repeats = (3, 2) if args.quick else (10, 7)
+    device = torch.device(args.device)
+    # CUDA work is asynchronous: wait for it before reading the clock
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     torch.manual_seed(0)
-    wm = DreamerWorldModel.teacher(S, A, size=args.size)
+    wm = DreamerWorldModel.teacher(S, A, size=args.size).to(device)
     opt = torch.optim.Adam(wm.parameters(), lr=1e-4)
-    td = make_batch(B, T, S, A)
+    td = make_batch(B, T, S, A, device)
     loss_checked = DreamerWorldModelLoss(wm)
     loss_unchecked = DreamerWorldModelLoss(wm, check_inputs=False)
     raw = (td["next", "state"], td["action"], td["next", "reward"], td["is_init"].squeeze(-1))
@@ -88,13 +95,15 @@ def main():
         run()
     for _ in range(repeats):
         for name, run in contenders.items():
+            sync()
             start = time.perf_counter()
             for _ in range(updates):
                 run()
+            sync()
             rates[name].append(updates / (time.perf_counter() - start))
     ref = rates["plain PyTorch loop"]
     print(f"\nRSSM '{args.size}' (deter {wm.rssm.deter_dim}, {wm.rssm.stoch}x{wm.rssm.classes} "
-          f"latents), batch {B} x {T}, torch threads {torch.get_num_threads()}")
+          f"latents), batch {B} x {T}, device {device}, torch threads {torch.get_num_threads()}")
     print(f"{'contender':34s} {'updates/s':>10s} {'x plain':>8s} {'overhead':>9s}")
     for name, r in rates.items():
         ratio = statistics.median(a / b for a, b in zip(r, ref))
