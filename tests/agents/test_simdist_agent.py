@@ -99,3 +99,34 @@ def test_latency_compensation_plans_from_the_latent_rolled_through_actions_in_fl
         bare.rollout(2, policy)
     with pytest.raises(ValueError, match="latency_compensation"):
         PlannerConfig(latency_compensation=-1)
+
+
+def test_a_dynamics_ensemble_trains_saves_and_plans_as_shared_members(tmp_path):
+    from simdist.modules import WorldModelEnsemble
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(4, 2, size="tiny")
+    agent = SimDistAgent(wm, SimDistConfig(horizon=2, dynamics_members=3))
+    members = agent.members()
+    assert len(members) == 3 and members[0] is wm
+    assert all(m.encoder is wm.encoder and m.value_head is wm.value_head for m in members)
+    assert len({id(m.dynamics) for m in members}) == 3
+    before = [copy.deepcopy(m.dynamics.state_dict()) for m in members]
+    agent.pretrain_update(linear_system_batch(batch=4, time=6, obs_dim=4))
+    for m, old in zip(members, before):  # the optimiser holds every member's dynamics
+        assert any(not torch.equal(v, old[k]) for k, v in m.dynamics.state_dict().items())
+    path = agent.save(tmp_path / "agent.pt")
+    loaded = SimDistAgent.load(path)
+    for m, n in zip(members, loaded.members()):
+        for k, v in m.state_dict().items():
+            assert torch.equal(v, n.state_dict()[k]), k
+    z = WorldModelEnsemble(loaded.members()).encode(torch.randn(5, wm.encoder.history, 4))
+    assert z.shape == (5, 3 * wm.latent_dim)
+    with pytest.raises(ValueError, match="dynamics_members must be >= 1"):
+        SimDistAgent(wm, SimDistConfig(dynamics_members=0))
+
+
+def test_with_dynamics_refuses_a_dynamics_of_another_latent_size():
+    from simdist.modules.simdist_model import MLPDynamics
+    wm = SimDistWorldModel.build(4, 2, size="tiny")
+    with pytest.raises(ValueError):
+        wm.with_dynamics(MLPDynamics(latent_dim=8, action_dim=2, hidden=16, simnorm_groups=4))

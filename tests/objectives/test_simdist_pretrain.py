@@ -215,3 +215,36 @@ def test_windows_cut_off_by_the_slice_are_not_trained_on():
     _, _, mask = rollout_windows(wm, z, torch.zeros(2, 6, 2), is_init, horizon=2)
     assert mask[0, :2].sum() == 0 and mask[0, 2:].min() == 1  # mid-episode slice
     assert mask[1, 0].sum() == 0  # start 0 precedes the episode start (and would cross it)
+
+
+def test_a_dynamics_ensemble_averages_each_members_terms():
+    # Each term is the mean over the dynamics members of the single-model term computed
+    # with that member's dynamics; BC reads the shared encoder once.
+    wm = _model()
+    other = wm.fresh_dynamics()
+    td = linear_system_batch(batch=2, time=6, obs_dim=4)
+    out = SimDistPretrainLoss(wm, horizon=2, extra_dynamics=[other])(td)
+    alone = SimDistPretrainLoss(wm, horizon=2)(td)
+    second = SimDistPretrainLoss(wm.with_dynamics(other), horizon=2)(td)
+    for term in ("loss_consistency", "loss_reward", "loss_value"):
+        torch.testing.assert_close(out[term], (alone[term] + second[term]) / 2)
+    torch.testing.assert_close(out["loss_bc"], alone["loss_bc"])
+    # a member identical to the model's own dynamics changes nothing
+    same = SimDistPretrainLoss(wm, horizon=2, extra_dynamics=[copy.deepcopy(wm.dynamics)])(td)
+    for term in ("loss_consistency", "loss_reward", "loss_value", "loss_bc"):
+        torch.testing.assert_close(same[term], alone[term])
+
+
+def test_every_dynamics_member_and_the_shared_parts_get_gradients():
+    wm = _model()
+    extra = [wm.fresh_dynamics(), wm.fresh_dynamics()]
+    # fresh initialisations: the members start apart
+    assert not torch.equal(extra[0].net[0].weight, wm.dynamics.net[0].weight)
+    loss = SimDistPretrainLoss(wm, horizon=2, extra_dynamics=extra)
+    params = loss.trainable_parameters()
+    assert {id(p) for p in params} == ({id(p) for p in wm.parameters()}
+                                       | {id(p) for d in extra for p in d.parameters()})
+    out = loss(linear_system_batch(batch=2, time=6, obs_dim=4))
+    sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+    for module in (wm.encoder, wm.dynamics, *extra, wm.reward_head, wm.value_head):
+        assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in module.parameters())

@@ -184,6 +184,21 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
     assert (tmp_path / "rerun_after.rrd").stat().st_size > 0
 
 
+def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert):
+    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
+                "--ensemble-shared-encoder", "--budgets-min", 0.02, "--output-dir", tmp_path,
+                "--threads", 1)
+    assert proc.returncode == 0, proc.stderr
+    stages = tmp_path / "stages"
+    pretrain = json.loads((stages / "pretrain.json").read_text())["result"]
+    round_1 = json.loads((stages / "round_1.json").read_text())["result"]
+    for paths in (pretrain["members"], round_1["simdist_members"]):
+        first, second = (torch.load(m, weights_only=True) for m in paths)
+        for k, v in first.items():  # one encoder and heads, two dynamics
+            assert torch.equal(v, second[k]) != k.startswith("dynamics"), k
+    assert "pretrain world model (member 1)" not in proc.stderr  # one joint pretraining
+
+
 def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_expert):
     icy = '{"name": "icy_ramp", "friction": 0.4, "slope_deg": 6.0}'  # a custom target
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--seeds", 0, 1,

@@ -61,6 +61,11 @@ class SimDistConfig:
     # encoded latents. 0 and 0: the reference's consistency-only finetuning.
     finetune_reward_weight: float = 0.0
     finetune_value_weight: float = 0.0
+    # dynamics modules pretrained together on the shared encoder and heads (a dynamics
+    # ensemble; SimDistPretrainLoss(extra_dynamics=)). 1: the single model. The extra
+    # ones live in ``pretrain_loss.extra_dynamics``; :meth:`SimDistAgent.members` gives
+    # one world model per dynamics, sharing everything else.
+    dynamics_members: int = 1
 
 
 # the actions a latency-compensating policy has sent that the robot may not apply yet
@@ -159,13 +164,18 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self.world_model, self.config = world_model, config
         # the planner :meth:`policy` uses by default; saved with the agent
         self.planner_config = planner_config
+        if config.dynamics_members < 1:
+            raise ValueError(f"dynamics_members must be >= 1, got {config.dynamics_members}")
+        extra = [world_model.fresh_dynamics() for _ in range(config.dynamics_members - 1)]
         self.pretrain_loss = SimDistPretrainLoss(world_model, horizon=config.horizon,
                                                  bc_weight=config.bc_weight,
-                                                 value_weight=config.value_weight)
+                                                 value_weight=config.value_weight,
+                                                 extra_dynamics=extra)
         self.finetune_loss = DynamicsFinetuneLoss(world_model, horizon=config.horizon,
                                                   reward_weight=config.finetune_reward_weight,
                                                   value_weight=config.finetune_value_weight)
-        self.pretrain_optim = torch.optim.Adam(world_model.parameters(), lr=config.lr)
+        self.pretrain_optim = torch.optim.Adam(self.pretrain_loss.trainable_parameters(),
+                                               lr=config.lr)
         self.finetune_optim = torch.optim.Adam(self.finetune_loss.trainable_parameters(),
                                                lr=config.finetune_lr)
         self.whole_optim = torch.optim.Adam(world_model.parameters(), lr=config.finetune_lr)
@@ -178,9 +188,15 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         """Moves the world model to ``device`` (its optimisers follow, see
         :func:`~simdist.utils.device.move_to_device`); the updates move each batch there.
         Returns ``self``."""
-        move_to_device([self.world_model],
+        move_to_device([self.world_model, self.pretrain_loss.extra_dynamics],
                        [self.pretrain_optim, self.finetune_optim, self.whole_optim], device)
         return self
+
+    def members(self) -> list[SimDistWorldModel]:
+        """One world model per pretrained dynamics (``config.dynamics_members``), the
+        first being :attr:`world_model`; all share its encoder and heads."""
+        return [self.world_model, *(self.world_model.with_dynamics(d)
+                                    for d in self.pretrain_loss.extra_dynamics)]
 
     def _apply(self, total, optim) -> None:
         optim.zero_grad(set_to_none=True)
@@ -276,9 +292,11 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         """
         optim = {name: getattr(self, name).state_dict()
                  for name in ("pretrain_optim", "finetune_optim", "whole_optim")}
+        weights = {"world_model": self.world_model.state_dict()}
+        if len(self.pretrain_loss.extra_dynamics):  # the other members of a dynamics ensemble
+            weights["extra_dynamics"] = self.pretrain_loss.extra_dynamics.state_dict()
         return ckpt_format.write_agent_checkpoint(
-            path, "SimDistAgent", self.describe(), {"world_model": self.world_model.state_dict()},
-            optim if optimisers else None, meta)
+            path, "SimDistAgent", self.describe(), weights, optim if optimisers else None, meta)
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict, path="<checkpoint>", map_location=None) -> SimDistAgent:
@@ -294,6 +312,10 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         agent = cls(wm, agent_config, planner_config=planner)
         ckpt_format.load_weights(wm, ckpt_format.part(ckpt, path, "weights", "world_model"),
                                  path, "world_model")
+        if agent_config.dynamics_members > 1:
+            ckpt_format.load_weights(agent.pretrain_loss.extra_dynamics,
+                                     ckpt_format.part(ckpt, path, "weights", "extra_dynamics"),
+                                     path, "extra_dynamics")
         ckpt_format.load_optimisers(agent, ckpt, ("pretrain_optim", "finetune_optim", "whole_optim"), path)
         agent.checkpoint_meta = dict(ckpt.get("meta", {}))
         return agent.to(map_location) if map_location is not None else agent

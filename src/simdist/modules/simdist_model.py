@@ -7,6 +7,8 @@ encoder and dynamics outputs (TD-MPC2) keeps the latent bounded.
 
 from __future__ import annotations
 
+import copy
+
 import torch
 from torch import nn
 
@@ -122,3 +124,29 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
 
     def parts(self) -> dict[str, nn.Module]:
         return {name: getattr(self, name) for name in self.PARTS}
+
+    def with_dynamics(self, dynamics: nn.Module) -> SimDistWorldModel:
+        """A model that *shares* this one's encoder and heads (the same modules, not
+        copies) and steps with ``dynamics``: a member of a dynamics ensemble.
+
+        Examples:
+            >>> wm = SimDistWorldModel.build(obs_dim=10, action_dim=3, size="tiny")
+            >>> other = wm.with_dynamics(MLPDynamics(16, 3, hidden=32, simnorm_groups=4))
+            >>> other.encoder is wm.encoder, other.dynamics is wm.dynamics
+            (True, False)
+        """
+        sizes = (getattr(dynamics, "latent_dim", self.latent_dim),
+                 getattr(dynamics, "action_dim", self.action_dim))
+        if sizes != (self.latent_dim, self.action_dim):
+            raise ValueError(f"dynamics of (latent_dim, action_dim) {sizes} cannot step this "
+                             f"model's latents: it has {(self.latent_dim, self.action_dim)}")
+        return type(self)(self.encoder, dynamics, self.reward_head, self.value_head,
+                          self.policy_head)
+
+    def fresh_dynamics(self) -> nn.Module:
+        """A copy of this model's dynamics module with freshly initialised weights."""
+        dynamics = copy.deepcopy(self.dynamics)
+        for module in dynamics.modules():
+            if module is not dynamics and hasattr(module, "reset_parameters"):
+                module.reset_parameters()
+        return dynamics

@@ -8,14 +8,19 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
+from torch import nn
 
 from simdist.modules.simdist_model import SimDistWorldModel
 from simdist.objectives.common import SimdistLoss, sequence_batch
 
 
 def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: torch.Tensor,
-                    is_init: torch.Tensor, horizon: int):
+                    is_init: torch.Tensor, horizon: int, dynamics: nn.Module | None = None):
     """Predicts ``horizon`` latents from every start of ``[B, T]`` slices in parallel.
+
+    ``dynamics`` (default: the model's own) steps the latent; any module with the same
+    call as :class:`~simdist.modules.MLPDynamics` (e.g. another member of a dynamics
+    ensemble on the same encoder).
 
     Returns ``(predicted [B, S, H, L], targets [B, S, H, L], mask [B, S, H])`` with
     ``S = T - horizon`` starts; ``mask`` drops targets on or after an episode start
@@ -28,7 +33,14 @@ def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: to
         raise ValueError(f"slices of length {T} are too short for horizon {horizon}: "
                          f"need at least {horizon + 1} steps")
     windows = actions.unfold(1, horizon, 1)[:, :S].transpose(-1, -2)        # [B, S, H, A]
-    predicted = model.rollout(latents[:, :S], windows)                       # [B, S, H, L]
+    if dynamics is None:
+        predicted = model.rollout(latents[:, :S], windows)                   # [B, S, H, L]
+    else:
+        z, steps = latents[:, :S], []
+        for i in range(horizon):
+            z = dynamics(z, windows[..., i, :])
+            steps.append(z)
+        predicted = torch.stack(steps, -2)
     targets = latents.unfold(1, horizon, 1)[:, 1:S + 1].transpose(-1, -2)   # [B, S, H, L]
     crosses = is_init.unfold(1, horizon, 1)[:, 1:S + 1]                     # [B, S, H]
     mask = torch.cumprod((~crosses).to(latents.dtype), -1)
@@ -76,6 +88,14 @@ class SimDistPretrainLoss(SimdistLoss):
     Targets after an episode start inside the horizon are masked out. Reference weights:
     latent 1, reward 1, value 1, action 4.
 
+    ``extra_dynamics`` pretrains a *dynamics ensemble* on the shared encoder and heads:
+    every dynamics module (the model's own first) rolls out from the same encoded
+    latents, and the consistency, reward and value terms are the means over them (BC
+    reads the encoder alone, once). The members differ by their initialisation; the
+    encoder gets the mean of their gradients. Plan with them as one through
+    :class:`~simdist.modules.WorldModelEnsemble` over
+    :meth:`SimDistWorldModel.with_dynamics <simdist.modules.SimDistWorldModel.with_dynamics>` models.
+
     Examples:
         >>> wm = SimDistWorldModel.build(obs_dim=6, action_dim=2, size="tiny")
         >>> td = TensorDict({"observation": torch.randn(3, 8, 6), "action": torch.rand(3, 8, 2),
@@ -100,16 +120,18 @@ class SimDistPretrainLoss(SimdistLoss):
 
     def __init__(self, world_model: SimDistWorldModel, horizon: int = 5,
                  consistency_weight: float = 1.0, reward_weight: float = 1.0,
-                 value_weight: float = 1.0, bc_weight: float = 4.0, check_inputs: bool = True):
+                 value_weight: float = 1.0, bc_weight: float = 4.0, check_inputs: bool = True,
+                 extra_dynamics=()):
         super().__init__(check_inputs)
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
         self.world_model, self.horizon = world_model, horizon
         self.weights = dict(consistency=consistency_weight, reward=reward_weight,
                             value=value_weight, bc=bc_weight)
+        self.extra_dynamics = nn.ModuleList(extra_dynamics)
 
     def trainable_parameters(self):
-        return list(self.world_model.parameters())
+        return list(self.world_model.parameters()) + list(self.extra_dynamics.parameters())
 
     def forward(self, td: TensorDictBase) -> TensorDict:
         B, T = sequence_batch(td)
@@ -117,20 +139,26 @@ class SimDistPretrainLoss(SimdistLoss):
         is_init = self.read_flag(td, "is_init", (B, T))
         action = self.read(td, "action")
         latents = wm.encode_sequence(self.read(td, "observation"), is_init)
-        predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
         S = T - H
-        consistency = masked_mean((predicted - targets.detach()).pow(2).sum(-1), mask)
-        # z^_{t+i}, i = 0..H: the start latent then the predictions. Reward on i < H (each
-        # with its action), value on every i: the planner reads the value at z^_{t+H}.
-        path = torch.cat([latents[:, :S, None], predicted], 2)                 # [B, S, H+1, L]
-        start_ok = complete_windows(is_init, wm.encoder.history)[:, :S, None].to(mask.dtype)
-        path_mask = torch.cat([start_ok, mask], -1)                            # [B, S, H+1]
         act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)
         reward_t = self.read_scalar(td, "reward", (B, T)).unfold(1, H, 1)[:, :S].transpose(-1, -2)
         value_t = self.read_scalar(td, "value_target", (B, T)).unfold(1, H + 1, 1)[:, :S].transpose(-1, -2)
-        reward = masked_mean((wm.reward(path[:, :, :-1], act) - reward_t).pow(2).squeeze(-1),
-                             path_mask[..., :-1])
-        value = masked_mean((wm.value(path) - value_t).pow(2).squeeze(-1), path_mask)
+        start_ok = complete_windows(is_init, wm.encoder.history)[:, :S, None].to(latents.dtype)
+        members = [None, *self.extra_dynamics]  # None: the model's own dynamics
+        rolled = [rollout_windows(wm, latents, action, is_init, H, d) for d in members]
+        predicted = torch.cat([r[0] for r in rolled])                          # [K*B, S, H, L]
+        targets, mask = rolled[0][1], torch.cat([r[2] for r in rolled])
+        def tile(x):  # the same tensor for every member, stacked along the batch
+            return x.repeat(len(members), *[1] * (x.dim() - 1))
+
+        consistency = masked_mean((predicted - tile(targets.detach())).pow(2).sum(-1), mask)
+        # z^_{t+i}, i = 0..H: the start latent then the predictions. Reward on i < H (each
+        # with its action), value on every i: the planner reads the value at z^_{t+H}.
+        path = torch.cat([tile(latents[:, :S, None]), predicted], 2)          # [K*B, S, H+1, L]
+        path_mask = torch.cat([tile(start_ok), mask], -1)                      # [K*B, S, H+1]
+        reward = masked_mean((wm.reward(path[:, :, :-1], tile(act)) - tile(reward_t))
+                             .pow(2).squeeze(-1), path_mask[..., :-1])
+        value = masked_mean((wm.value(path) - tile(value_t)).pow(2).squeeze(-1), path_mask)
         expert = self.read_flag(td, "expert_active", (B, T)).to(latents.dtype)
         expert = expert * complete_windows(is_init, wm.encoder.history).to(latents.dtype)
         bc = masked_mean((wm.policy(latents) - action).pow(2).mean(-1), expert)

@@ -120,6 +120,12 @@ class Config:
     # 26% for the best of them alone and 11% on average (benchmarks/README.md, "Several
     # world models").
     ensemble_size: int = 1
+    # with ensemble_size K > 1: the members share one encoder and the reward, value and
+    # policy heads, and only their K dynamics differ (pretrained together by
+    # SimDistPretrainLoss(extra_dynamics=); one pretraining at ~2.5x a single model's cost
+    # at K = 3 instead of 3x, and SimDist's dynamics-only finetuning keeps them shared).
+    # False: K independent models.
+    ensemble_shared_encoder: bool = False
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
     # Value labels are discounted returns, up to 1/(1-gamma) = 100 rewards: weighting their
@@ -303,14 +309,16 @@ def heldout_prediction_error(cfg: Config, agent: SimDistAgent, expert_path: str)
                                    cfg.model_horizon)
 
 
-def new_agent(cfg: Config, obs_dim: int, action_dim: int) -> SimDistAgent:
+def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int = 1
+              ) -> SimDistAgent:
     overrides = {"history": cfg.model_history} if cfg.model_history else {}
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
                                           value_weight=cfg.value_weight,
                                           finetune_reward_weight=cfg.finetune_reward_weight,
-                                          finetune_value_weight=cfg.finetune_value_weight),
+                                          finetune_value_weight=cfg.finetune_value_weight,
+                                          dynamics_members=dynamics_members),
                         planner_config=cfg.planner()).to(cfg.device)
 
 
@@ -334,7 +342,8 @@ def pretrain_member(cfg: Config, buffer, data, expert_path: str, stage_dir: Path
     if i:
         torch.manual_seed(stage_seed(cfg.seed, f"pretrain/member_{i}/init"))
     obs = data["observation"]
-    agent = new_agent(cfg, obs.shape[-1], data["action"].shape[-1])
+    shared = cfg.ensemble_size if cfg.ensemble_shared_encoder else 1
+    agent = new_agent(cfg, obs.shape[-1], data["action"].shape[-1], dynamics_members=shared)
     flat = obs.reshape(-1, obs.shape[-1])
     agent.world_model.encoder.set_normalisation(flat.mean(0), flat.std(0))
     member = "" if i == 0 else f"member_{i}/"
@@ -342,7 +351,9 @@ def pretrain_member(cfg: Config, buffer, data, expert_path: str, stage_dir: Path
         (stage_dir / member).mkdir(parents=True, exist_ok=True)
     history = train_resumable(
         agent.pretrain_update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
-        cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim},
+        cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim,
+                               **({"extra_dynamics": agent.pretrain_loss.extra_dynamics}
+                                  if shared > 1 else {})},
         stage_dir / member / "training.pt",
         desc="pretrain world model" + (f" (member {i})" if i else ""),
         seed=stage_seed(cfg.seed, "pretrain" if i == 0 else f"pretrain/member_{i}"),
@@ -361,8 +372,13 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
     agent_file = save_agent(cfg, agent, stage_dir / "agent.pt")
     members = [str(stage_dir / "world_model.pt")]
     for i in range(1, cfg.ensemble_size):
-        pretrain_member(cfg, buffer, data, expert_path, stage_dir, i, logger)
-        members.append(str(stage_dir / f"member_{i}" / "world_model.pt"))
+        path = stage_dir / f"member_{i}" / "world_model.pt"
+        if cfg.ensemble_shared_encoder:  # trained above: member 0's parts, dynamics i
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_atomic(agent.members()[i].state_dict(), path)
+        else:
+            pretrain_member(cfg, buffer, data, expert_path, stage_dir, i, logger)
+        members.append(str(path))
     first, last = mean_metrics(history[:50], 50), mean_metrics(history)
     return {"path": members[0], "members": members, "agent": agent_file,
             "obs_dim": obs.shape[-1], "action_dim": data["action"].shape[-1],
