@@ -121,6 +121,14 @@ def test_a_dynamics_ensemble_trains_saves_and_plans_as_shared_members(tmp_path):
             assert torch.equal(v, n.state_dict()[k]), k
     z = WorldModelEnsemble(loaded.members()).encode(torch.randn(5, wm.encoder.history, 4))
     assert z.shape == (5, 3 * wm.latent_dim)
+    assert isinstance(loaded.policy().world_model, WorldModelEnsemble)  # plans with all three
+    # SimDist finetuning moves every member's dynamics and nothing they share
+    shared = copy.deepcopy(loaded.world_model.encoder.state_dict())
+    before = [copy.deepcopy(m.dynamics.state_dict()) for m in loaded.members()]
+    loaded.finetune_update(linear_system_batch(batch=4, time=6, obs_dim=4))
+    for m, old in zip(loaded.members(), before):
+        assert any(not torch.equal(v, old[k]) for k, v in m.dynamics.state_dict().items())
+    assert all(torch.equal(v, shared[k]) for k, v in loaded.world_model.encoder.state_dict().items())
     with pytest.raises(ValueError, match="dynamics_members must be >= 1"):
         SimDistAgent(wm, SimDistConfig(dynamics_members=0))
 

@@ -153,6 +153,7 @@ def test_dataset_dither_reaches_the_perturbation_schedule():
     (["--model-history", "-1"], "model_history: must be >= 0"),
     (["--threads", "-1"], "threads: must be >= 0"),
     (["--ensemble-size", "0"], "ensemble_size: must be > 0"),
+    (["--ensemble-shared-encoder"], "ensemble_shared_encoder: needs --ensemble-size > 1"),
 ])
 def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message):
     proc = _run(*flags, "--output-dir", tmp_path / "out")

@@ -37,6 +37,24 @@ def test_a_different_config_is_refused(tmp_path):
         StageRunner(tmp_path, {"seed": 1, "steps": 6})
 
 
+def test_a_field_added_later_reads_as_its_default_in_an_older_folder(tmp_path):
+    import dataclasses
+
+    @dataclasses.dataclass
+    class Old:
+        seed: int = 1
+
+    @dataclasses.dataclass
+    class New:
+        seed: int = 1
+        members: list = dataclasses.field(default_factory=lambda: [1])
+
+    StageRunner(tmp_path, Old()).close()
+    StageRunner(tmp_path, New()).close()  # the folder was made before the field existed
+    with pytest.raises(ValueError, match="changed: \\['members'\\]"):
+        StageRunner(tmp_path, New(members=[2]))
+
+
 def test_runtime_keys_may_change_between_runs_but_nothing_else(tmp_path):
     keys = ("device",)
     StageRunner(tmp_path, {"seed": 1, "device": "cpu"}, runtime_keys=keys)

@@ -24,7 +24,7 @@ from torchrl.envs import TensorDictPrimer
 from simdist.agents import checkpoint as ckpt_format
 from simdist.agents.action_spec import action_bounds
 from simdist.agents.describe import build_simdist_model, describe_simdist_model
-from simdist.modules import SimDistWorldModel
+from simdist.modules import SimDistWorldModel, WorldModelEnsemble
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.objectives import DynamicsFinetuneLoss, SimDistPretrainLoss
 from simdist.utils.device import module_device, move_to_device
@@ -171,14 +171,20 @@ class SimDistAgent(ckpt_format.LoadableAgent):
                                                  bc_weight=config.bc_weight,
                                                  value_weight=config.value_weight,
                                                  extra_dynamics=extra)
-        self.finetune_loss = DynamicsFinetuneLoss(world_model, horizon=config.horizon,
-                                                  reward_weight=config.finetune_reward_weight,
-                                                  value_weight=config.finetune_value_weight)
+        # one finetuning loss per dynamics member (the first: ``finetune_loss``)
+        self.finetune_losses = [
+            DynamicsFinetuneLoss(member, horizon=config.horizon,
+                                 reward_weight=config.finetune_reward_weight,
+                                 value_weight=config.finetune_value_weight)
+            for member in self.members()]
+        self.finetune_loss = self.finetune_losses[0]
         self.pretrain_optim = torch.optim.Adam(self.pretrain_loss.trainable_parameters(),
                                                lr=config.lr)
-        self.finetune_optim = torch.optim.Adam(self.finetune_loss.trainable_parameters(),
-                                               lr=config.finetune_lr)
-        self.whole_optim = torch.optim.Adam(world_model.parameters(), lr=config.finetune_lr)
+        self.finetune_optim = torch.optim.Adam(
+            [p for loss in self.finetune_losses for p in loss.trainable_parameters()],
+            lr=config.finetune_lr)
+        self.whole_optim = torch.optim.Adam(self.pretrain_loss.trainable_parameters(),
+                                            lr=config.finetune_lr)
 
     @property
     def device(self) -> torch.device:
@@ -211,11 +217,20 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.pretrain_optim)
         return {k: v.item() for k, v in out.items()}
 
-    def finetune_update(self, batch: TensorDictBase) -> dict[str, float]:
+    def _finetune(self, batch: TensorDictBase, whole_model: bool, optim) -> dict[str, float]:
+        """Every member's finetuning loss on ``batch``, their mean applied; the metrics
+        are the members' means."""
         batch = batch.to(self.device)
-        out = self.finetune_loss(batch)
-        self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.finetune_optim)
-        return {k: v.item() for k, v in out.items()}
+        outs = [loss.consistency_all_parts(batch) if whole_model else loss(batch)
+                for loss in self.finetune_losses]
+        total = sum(v for out in outs for k, v in out.items() if k.startswith("loss_"))
+        self._apply(total / len(outs), optim)
+        return {k: sum(out[k].item() for out in outs) / len(outs) for k in outs[0].keys()}
+
+    def finetune_update(self, batch: TensorDictBase) -> dict[str, float]:
+        """SimDist's finetuning: the dynamics (every member's, with
+        ``config.dynamics_members`` > 1) on target slices; nothing else moves."""
+        return self._finetune(batch, False, self.finetune_optim)
 
     def finetune_whole_update(self, batch: TensorDictBase) -> dict[str, float]:
         """Ablation: the finetuning loss on target data with every part trainable.
@@ -225,9 +240,7 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         with ``finetune_reward_weight``/``finetune_value_weight`` the head terms train the
         heads as well.
         """
-        out = self.finetune_loss.consistency_all_parts(batch.to(self.device))
-        self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.whole_optim)
-        return {k: v.item() for k, v in out.items()}
+        return self._finetune(batch, True, self.whole_optim)
 
     def policy(self, action_low=None, action_high=None, config: PlannerConfig | None = None,
                seed: int = 0, compile: bool = False, *, action_spec=None) -> SimDistPolicy:
@@ -259,10 +272,13 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         elif (action_low is None) != (action_high is None):
             raise ValueError("pass both action_low and action_high (or an action_spec)")
         config = config or self.planner_config or PlannerConfig()
+        # a dynamics ensemble plans as one model (WorldModelEnsemble over the members)
+        model = self.world_model if len(self.pretrain_loss.extra_dynamics) == 0 else \
+            WorldModelEnsemble(self.members())
         planner = LatentMPPIPlanner.from_world_model(
-            self.world_model, config, seed=seed, compile=compile,
+            model, config, seed=seed, compile=compile,
             action_bounds=None if action_low is None else (action_low, action_high))
-        return SimDistPolicy(self.world_model, planner,
+        return SimDistPolicy(model, planner,
                              latency_compensation=config.latency_compensation).to(self.device)
 
     # -- self-describing checkpoints --------------------------------------------------

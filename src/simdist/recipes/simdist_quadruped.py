@@ -123,8 +123,9 @@ class Config:
     # with ensemble_size K > 1: the members share one encoder and the reward, value and
     # policy heads, and only their K dynamics differ (pretrained together by
     # SimDistPretrainLoss(extra_dynamics=); one pretraining at ~2.5x a single model's cost
-    # at K = 3 instead of 3x, and SimDist's dynamics-only finetuning keeps them shared).
-    # False: K independent models.
+    # at K = 3 instead of 3x, and SimDist's dynamics-only finetuning keeps them shared;
+    # the whole-model ablation finetunes each member as its own model, so its encoders
+    # drift apart). False: K independent models.
     ensemble_shared_encoder: bool = False
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
@@ -204,6 +205,8 @@ class Config:
               and all(a < b for a, b in zip(self.budgets_min, self.budgets_min[1:])),
               "budgets_min", f"must be positive and increasing, got {self.budgets_min}")
         check(len(set(self.seeds)) == len(self.seeds), "seeds", f"repeated seeds {self.seeds}")
+        check(self.ensemble_size > 1 or not self.ensemble_shared_encoder, "ensemble_shared_encoder",
+              "needs --ensemble-size > 1 (one model has nothing to share)")
         check_builds("planner_*", self.planner)
         check_builds("dataset_*", dataset_config, self)
         check_builds("device", resolve_device, self.device)

@@ -89,6 +89,8 @@ class StageRunner:
         self.timings: dict[str, float] = {}
 
     def _check_config(self, config: Any, ignored: set[str]) -> dict:
+        # a field added to the config after a folder was made reads as its default there
+        defaults = _field_defaults(config) if dataclasses.is_dataclass(config) else {}
         config = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
         config = json.loads(json.dumps(config, default=str))
         saved = self.out / "config.json"
@@ -99,6 +101,7 @@ class StageRunner:
             if not isinstance(previous, dict):
                 raise CorruptFileError(f"run config {str(saved)!r} is not a JSON object; "
                                        f"delete it and rerun with this folder's settings")
+            previous = {**{k: v for k, v in defaults.items() if k not in previous}, **previous}
             changed = sorted(k for k in set(previous) | set(config)
                              if previous.get(k) != config.get(k) and k not in ignored)
             if changed:
@@ -291,3 +294,14 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="simdist-parent-watchdog", daemon=True).start()
+
+
+def _field_defaults(config: Any) -> dict:
+    """The plain (JSON) default of every field of dataclass ``config`` that has one."""
+    out = {}
+    for f in dataclasses.fields(config):
+        if f.default is not dataclasses.MISSING:
+            out[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            out[f.name] = f.default_factory()
+    return json.loads(json.dumps(out, default=str))
