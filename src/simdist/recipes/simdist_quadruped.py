@@ -125,7 +125,10 @@ class Config:
     # SimDistPretrainLoss(extra_dynamics=); one pretraining at ~2.5x a single model's cost
     # at K = 3 instead of 3x, and SimDist's dynamics-only finetuning keeps them shared;
     # the whole-model ablation finetunes each member as its own model, so its encoders
-    # drift apart). False: K independent models.
+    # drift apart). False: K independent models. Measured at K = 3 (3 seeds, slippery_slope):
+    # zero-shot 8% of the commanded distance (default -5%), 2 minutes of target data 16%
+    # (default 15%): no gain after finetuning (benchmarks/README.md, "A dynamics ensemble
+    # on one encoder").
     ensemble_shared_encoder: bool = False
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
