@@ -33,14 +33,8 @@ def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: to
         raise ValueError(f"slices of length {T} are too short for horizon {horizon}: "
                          f"need at least {horizon + 1} steps")
     windows = actions.unfold(1, horizon, 1)[:, :S].transpose(-1, -2)        # [B, S, H, A]
-    if dynamics is None:
-        predicted = model.rollout(latents[:, :S], windows)                   # [B, S, H, L]
-    else:
-        z, steps = latents[:, :S], []
-        for i in range(horizon):
-            z = dynamics(z, windows[..., i, :])
-            steps.append(z)
-        predicted = torch.stack(steps, -2)
+    stepper = model if dynamics is None else model.with_dynamics(dynamics)
+    predicted = stepper.rollout(latents[:, :S], windows)                     # [B, S, H, L]
     targets = latents.unfold(1, horizon, 1)[:, 1:S + 1].transpose(-1, -2)   # [B, S, H, L]
     crosses = is_init.unfold(1, horizon, 1)[:, 1:S + 1]                     # [B, S, H]
     mask = torch.cumprod((~crosses).to(latents.dtype), -1)
