@@ -35,12 +35,13 @@ from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 class LatentEnv(ModelBasedEnvBase):
     """The world model's latent dynamics as a TorchRL model-based env (for MPPIPlanner)."""
 
-    def __init__(self, world_model, latent_dim, action_dim):
-        super().__init__(world_model)
-        self.state_spec = Composite(latent=Unbounded((latent_dim,)))
-        self.observation_spec = Composite(latent=Unbounded((latent_dim,)))
-        self.action_spec = Bounded(-1.0, 1.0, (action_dim,))
-        self.reward_spec = Unbounded((1,))
+    def __init__(self, world_model, latent_dim, action_dim, device="cpu"):
+        super().__init__(world_model, device=device)
+        self.state_spec = Composite(latent=Unbounded((latent_dim,), device=device), device=device)
+        self.observation_spec = Composite(latent=Unbounded((latent_dim,), device=device),
+                                          device=device)
+        self.action_spec = Bounded(-1.0, 1.0, (action_dim,), device=device)
+        self.reward_spec = Unbounded((1,), device=device)
 
     def _reset(self, tensordict):
         return tensordict.clone()
@@ -50,7 +51,7 @@ def torchrl_planner(wm: SimDistWorldModel, cfg: PlannerConfig) -> MPPIPlanner:
     model = WorldModelWrapper(
         TensorDictModule(wm.dynamics, in_keys=["latent", "action"], out_keys=["latent"]),
         TensorDictModule(wm.reward_head, in_keys=["latent", "action"], out_keys=["reward"]))
-    env = LatentEnv(model, wm.latent_dim, wm.action_dim)
+    env = LatentEnv(model, wm.latent_dim, wm.action_dim, next(wm.parameters()).device)
     value = ValueOperator(wm.value_head, in_keys=["latent"])
     advantage = TDLambdaEstimator(gamma=cfg.gamma, lmbda=0.95, value_network=value)
     return MPPIPlanner(env, advantage, temperature=cfg.temperature,

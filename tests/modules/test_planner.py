@@ -254,3 +254,17 @@ def test_all_samples_from_the_policy_prior():
                                 policy=lambda z: torch.full((z.shape[0], 1), 0.4), seed=0)
     torch.testing.assert_close(_plan(planner, torch.zeros(2, 1))["action"],
                                torch.full((2, 1), 0.4))
+
+
+def test_buffers_start_on_the_models_device():
+    # A planner built from a model already on another device must not keep its action bounds
+    # on the CPU (on CUDA that failed inside the first clamp; found on an H100). The "meta"
+    # device stands in for CUDA on CPU-only machines.
+    wm = SimDistWorldModel.build(obs_dim=5, action_dim=2, size="tiny").to("meta")
+    planner = LatentMPPIPlanner.from_world_model(wm, PlannerConfig(horizon=2, num_samples=8,
+                                                                   num_elites=2))
+    assert {b.device.type for b in planner.buffers()} == {"meta"}
+    # without models (plain callables) the bounds stay where they were made
+    free = LatentMPPIPlanner(lambda z, a: z, lambda z, a: z.sum(-1, keepdim=True), None,
+                             action_dim=2)
+    assert free.action_low.device.type == "cpu"

@@ -185,11 +185,14 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         if low.shape != (self.action_dim,) or high.shape != (self.action_dim,) or (low >= high).any():
             raise ValueError(f"action_bounds must be two ({self.action_dim},) tensors with "
                              f"low < high, got {low} and {high}")
-        self.register_buffer("action_low", low)
-        self.register_buffer("action_high", high)
+        # Buffers start where the models are: a planner built from a CUDA model plans on CUDA
+        # without a later .to(device) (the bounds would otherwise stay on the CPU).
+        device = next((p.device for p in self._modules_held.parameters()), low.device)
+        self.register_buffer("action_low", low.to(device))
+        self.register_buffer("action_high", high.to(device))
         self.generator_seed = seed
         self._generator = None
-        self.register_buffer("_previous_mean", torch.zeros(0), persistent=False)
+        self.register_buffer("_previous_mean", torch.zeros(0, device=device), persistent=False)
         self._plan_impl = torch.compile(self._plan, mode=(
             "reduce-overhead" if torch.cuda.is_available() else "default")) if compile \
             else self._plan
