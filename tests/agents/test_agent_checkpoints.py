@@ -224,3 +224,13 @@ def test_a_keypoint_student_round_trips_through_its_self_describing_file(tmp_pat
     assert (enc.arch, enc.keypoints, enc.embed_dim) == ("keypoints", 16, 32)
     for a, b in zip(student.parameters(), loaded.student.parameters()):
         assert torch.equal(a, b)
+
+
+def test_ignored_inputs_survive_the_round_trip(tmp_path):
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(obs_dim=10, action_dim=3, size="tiny", ignored_inputs=[2, 7])
+    path = SimDistAgent(wm).save(tmp_path / "agent.pt")
+    loaded = SimDistAgent.load(path).world_model
+    assert loaded.encoder.ignored_inputs == (2, 7)
+    window = torch.randn(4, loaded.encoder.history, 10)
+    torch.testing.assert_close(loaded.encode(window), wm.encode(window))

@@ -118,3 +118,25 @@ def test_keypoint_encoder_follows_a_moving_object_and_keeps_the_pixel_contract()
         PixelEncoder(depth=4, arch="resnet")
     with pytest.raises(ValueError, match="keypoints"):
         PixelEncoder(depth=4, arch="keypoints", keypoints=0)
+
+
+def test_history_encoder_ignores_the_inputs_it_is_told_to():
+    torch.manual_seed(0)
+    enc = HistoryEncoder(obs_dim=5, history=2, latent_dim=8, hidden=16, simnorm_groups=None,
+                         ignored_inputs=[1, 3])
+    obs = torch.randn(4, 2, 5)
+    changed = obs.clone()
+    changed[..., [1, 3]] = 100 * torch.randn(4, 2, 2)
+    torch.testing.assert_close(enc(changed), enc(obs))
+    other = obs.clone()
+    other[..., 0] += 1.0  # a read input still matters
+    assert not torch.allclose(enc(other), enc(obs))
+    # the mask is rebuilt from the argument, not saved: state dicts keep their keys
+    assert set(enc.state_dict()) == set(HistoryEncoder(5, 2, 8, 16, simnorm_groups=None).state_dict())
+
+
+@pytest.mark.parametrize("ignored, message", [([5], r"indices in \[0, 5\)"), ([-1], "indices"),
+                                              ([0, 1, 2, 3, 4], "every observation")])
+def test_history_encoder_refuses_impossible_ignored_inputs(ignored, message):
+    with pytest.raises(ValueError, match=message):
+        HistoryEncoder(obs_dim=5, history=2, latent_dim=8, hidden=16, ignored_inputs=ignored)

@@ -248,3 +248,49 @@ def test_every_dynamics_member_and_the_shared_parts_get_gradients():
     sum(v for k, v in out.items() if k.startswith("loss_")).backward()
     for module in (wm.encoder, wm.dynamics, *extra, wm.reward_head, wm.value_head):
         assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in module.parameters())
+
+
+def test_prediction_skill_references_equal_hand_computation():
+    from simdist.objectives.simdist_pretrain import (latent_prediction_error,
+                                                     latent_prediction_skill)
+    wm = _model()
+    td = linear_system_batch(batch=3, time=7, obs_dim=4)
+    td["is_init"][1, 3] = True  # an episode start inside a slice: windows stop there
+    H = 2
+    with torch.no_grad():
+        skill = latent_prediction_skill(wm, td, horizon=H, seed=5)
+        assert skill["model"] == pytest.approx(latent_prediction_error(wm, td, H))
+        is_init = td["is_init"].squeeze(-1)
+        z = wm.encode_sequence(td["observation"], is_init)
+        _, targets, mask = rollout_windows(wm, z, td["action"], is_init, H)
+        spread = z.reshape(-1, z.shape[-1]).var(0).sum()
+        for i in range(H):  # "copy": z_t predicts z_{t+1+i}, over the unmasked windows
+            err = sum(float(mask[b, s, i]) * float(((z[b, s] - z[b, s + 1 + i]) ** 2).sum())
+                      for b in range(3) for s in range(7 - H))
+            expected = err / float(mask[:, :, i].sum()) / float(spread)
+            assert skill["copy"][i] == pytest.approx(expected, rel=1e-5)
+
+
+def test_prediction_skill_shuffled_actions_matter_only_to_action_readers():
+    from simdist.objectives.simdist_pretrain import latent_prediction_skill
+
+    class Blind(torch.nn.Module):  # ignores its action: wrong actions change nothing
+        def __init__(self, inner):
+            super().__init__()
+            self.inner, self.latent_dim, self.action_dim = inner, inner.latent_dim, inner.action_dim
+
+        def forward(self, z, a):
+            return self.inner(z, torch.zeros_like(a))
+
+    wm = _model()
+    td = linear_system_batch(batch=4, time=8, obs_dim=4)
+    td["action"] = torch.randn_like(td["action"])
+    with torch.no_grad():
+        reads = latent_prediction_skill(wm, td, horizon=3)
+        blind = latent_prediction_skill(wm.with_dynamics(Blind(wm.dynamics)), td, horizon=3)
+    assert blind["shuffled"] == pytest.approx(blind["model"])
+    assert reads["shuffled"] != pytest.approx(reads["model"])
+    # a different seed permutes differently; the model and copy columns do not depend on it
+    other = latent_prediction_skill(wm, td, horizon=3, seed=1)
+    assert other["model"] == pytest.approx(reads["model"])
+    assert other["copy"] == pytest.approx(reads["copy"])

@@ -136,6 +136,16 @@ def test_model_history_sets_the_encoders_window():
     assert default.world_model.encoder.history == 2  # the size's own
 
 
+def test_ignored_observation_groups_reach_the_encoder():
+    from simdist.recipes.simdist_quadruped import Config, new_agent, observation_layout
+    layout = observation_layout("quadruped-terrain")
+    cfg = Config(model_size="tiny", model_ignored_observations=["toe_force", "accelerometer"])
+    agent = new_agent(cfg, obs_dim=layout.size, action_dim=12)
+    expected = [*range(layout.size)[layout["accelerometer"]], *range(layout.size)[layout["toe_force"]]]
+    assert list(agent.world_model.encoder.ignored_inputs) == sorted(expected)
+    assert new_agent(Config(model_size="tiny"), layout.size, 12).world_model.encoder.ignored_inputs == ()
+
+
 def test_dataset_dither_reaches_the_perturbation_schedule():
     from simdist.recipes.simdist_quadruped import Config, dataset_config
     assert dataset_config(Config(dataset_dither_std=0.3)).schedule.dither_std == 0.3
@@ -154,6 +164,7 @@ def test_dataset_dither_reaches_the_perturbation_schedule():
     (["--threads", "-1"], "threads: must be >= 0"),
     (["--ensemble-size", "0"], "ensemble_size: must be > 0"),
     (["--ensemble-shared-encoder"], "ensemble_shared_encoder: needs --ensemble-size > 1"),
+    (["--model-ignored-observations", "toes"], "unknown observation groups ['toes']"),
 ])
 def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message):
     proc = _run(*flags, "--output-dir", tmp_path / "out")

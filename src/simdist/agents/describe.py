@@ -57,6 +57,8 @@ def describe_simdist_model(model: SimDistWorldModel) -> dict:
             "action_dim": int(model.action_dim), "latent_dim": int(enc.latent_dim),
             "hidden": int(_linears(enc.net)[0].out_features), "history": int(enc.history),
             "simnorm_groups": enc.simnorm_groups}
+    if enc.ignored_inputs:  # files written before the option stay readable without it
+        desc["ignored_inputs"] = list(enc.ignored_inputs)
     _check_rebuilds(model, build_simdist_model(desc), "SimDistWorldModel")
     return desc
 
@@ -65,7 +67,8 @@ def build_simdist_model(desc: dict) -> SimDistWorldModel:
     """An untrained :class:`~simdist.modules.SimDistWorldModel` of the described sizes."""
     return SimDistWorldModel.build(
         desc["obs_dim"], desc["action_dim"], size="small", latent_dim=desc["latent_dim"],
-        hidden=desc["hidden"], history=desc["history"], simnorm_groups=desc["simnorm_groups"])
+        hidden=desc["hidden"], history=desc["history"], simnorm_groups=desc["simnorm_groups"],
+        ignored_inputs=desc.get("ignored_inputs", ()))
 
 
 def _describe_encoder(encoder: nn.Module) -> dict:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import nn
 
@@ -177,6 +179,8 @@ class HistoryEncoder(nn.Module):
     current episode repeat that first observation (a robot has no history yet there).
     With ``simnorm_groups`` the latent is split into groups, each softmax-normalised
     (TD-MPC2's SimNorm), which keeps latents bounded without a reconstruction loss.
+    ``ignored_inputs`` lists observation dimensions the encoder does not read (e.g. sensors
+    a world model should not depend on); the windows keep their full width.
 
     Examples:
         >>> enc = HistoryEncoder(obs_dim=4, history=3, latent_dim=16, hidden=32)
@@ -187,10 +191,17 @@ class HistoryEncoder(nn.Module):
     """
 
     def __init__(self, obs_dim: int, history: int = 4, latent_dim: int = 64, hidden: int = 256,
-                 layers: int = 2, simnorm_groups: int | None = 8):
+                 layers: int = 2, simnorm_groups: int | None = 8,
+                 ignored_inputs: Sequence[int] = ()):
         super().__init__()
         if history < 1:
             raise ValueError(f"history must be >= 1, got {history}")
+        ignored = sorted({int(i) for i in ignored_inputs})
+        if ignored and not (0 <= ignored[0] and ignored[-1] < obs_dim):
+            raise ValueError(f"ignored_inputs must be indices in [0, {obs_dim}), got {ignored}")
+        if len(ignored) == obs_dim:
+            raise ValueError("ignored_inputs would hide every observation dimension")
+        self.ignored_inputs = tuple(ignored)
         if simnorm_groups and latent_dim % simnorm_groups:
             raise ValueError(f"latent_dim={latent_dim} not divisible by "
                              f"simnorm_groups={simnorm_groups}")
@@ -201,6 +212,12 @@ class HistoryEncoder(nn.Module):
         # velocities and contact forces whose scales differ by orders of magnitude.
         self.register_buffer("obs_mean", torch.zeros(obs_dim))
         self.register_buffer("obs_std", torch.ones(obs_dim))
+        # Observation dimensions the encoder never reads (zeroed after standardisation, so
+        # they carry no information). Rebuilt from ``ignored_inputs``, not saved: state
+        # dicts keep the same keys with and without it.
+        mask = torch.ones(obs_dim)
+        mask[list(self.ignored_inputs)] = 0.0
+        self.register_buffer("input_mask", mask, persistent=False)
 
     def set_normalisation(self, mean: torch.Tensor, std: torch.Tensor, eps: float = 1e-3) -> None:
         """Standardises inputs with dataset statistics (e.g. before pretraining)."""
@@ -214,7 +231,7 @@ class HistoryEncoder(nn.Module):
     def forward(self, window: torch.Tensor) -> torch.Tensor:
         """Encodes windows ``[..., history, obs_dim]`` (oldest first) into latents."""
         check_last_dims("observation window", window, (self.history, self.obs_dim))
-        z = self.net(((window - self.obs_mean) / self.obs_std).flatten(-2))
+        z = self.net(((window - self.obs_mean) / self.obs_std * self.input_mask).flatten(-2))
         return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z
 
     def windows(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:

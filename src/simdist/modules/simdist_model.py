@@ -115,7 +115,8 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
         s = {**SIMDIST_SIZES[size], **overrides}
         latent, hidden, groups = s["latent_dim"], s["hidden"], s["simnorm_groups"]
         return cls(
-            HistoryEncoder(obs_dim, s["history"], latent, hidden, simnorm_groups=groups),
+            HistoryEncoder(obs_dim, s["history"], latent, hidden, simnorm_groups=groups,
+                           ignored_inputs=s.get("ignored_inputs", ())),
             dynamics or MLPDynamics(latent, action_dim, hidden, simnorm_groups=groups),
             ScalarHead(latent + action_dim, hidden, activation=nn.SiLU),
             ScalarHead(latent, hidden, activation=nn.SiLU),

@@ -28,6 +28,7 @@ Usage:
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,11 +41,11 @@ from simdist.agents import SimDistAgent, SimDistConfig
 from simdist.data import (DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.data.dataset import read_dataset_meta
-from simdist.envs import TASKS, describe_ranges, get_target
+from simdist.envs import TASKS, Layout, describe_ranges, get_target, make_env
 from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, WorldModelEnsemble
 from simdist.objectives import ProbeLoss
-from simdist.objectives.simdist_pretrain import latent_prediction_error
+from simdist.objectives.simdist_pretrain import latent_prediction_skill
 from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, stage_seed,
@@ -112,6 +113,11 @@ class Config:
     # worse (Spearman .07 vs .23) and planned the same (slippery_slope 8 min: +17% vs +18%,
     # 3 seeds; benchmarks/README.md, "Does training the model over the planner's horizon help?")
     model_horizon: int = 5
+    # robot-observation groups the world model's encoder does not read (names from the
+    # task's observation layout, e.g. toe_force, accelerometer, joint_vel). The expert and
+    # the dataset are unchanged; the encoder zeroes those inputs (HistoryEncoder
+    # ignored_inputs). [] reads everything.
+    model_ignored_observations: list[str] = field(default_factory=list)
     # world models pretrained (same dataset, different initialisation and batches) and
     # planned with together (simdist.modules.WorldModelEnsemble); each member's dynamics is
     # finetuned as itself, the whole-model ablation likewise. K costs K x the pretraining,
@@ -210,6 +216,12 @@ class Config:
         check(len(set(self.seeds)) == len(self.seeds), "seeds", f"repeated seeds {self.seeds}")
         check(self.ensemble_size > 1 or not self.ensemble_shared_encoder, "ensemble_shared_encoder",
               "needs --ensemble-size > 1 (one model has nothing to share)")
+        names = observation_layout(self.data_task).names()
+        unknown = [g for g in self.model_ignored_observations if g not in names]
+        check(not unknown, "model_ignored_observations",
+              f"unknown observation groups {unknown}; valid: {names}")
+        check(len(set(self.model_ignored_observations)) < len(names),
+              "model_ignored_observations", "would hide every observation group")
         check_builds("planner_*", self.planner)
         check_builds("dataset_*", dataset_config, self)
         check_builds("device", resolve_device, self.device)
@@ -304,20 +316,42 @@ def dataset_stage(cfg: Config, expert_path: str, stage_dir: Path) -> dict:
             "final_expert_unnoised_fraction": data["expert_active"].float().mean().item()}
 
 
-def heldout_prediction_error(cfg: Config, agent: SimDistAgent, expert_path: str) -> list[float]:
+def heldout_prediction_skill(cfg: Config, agent: SimDistAgent, expert_path: str
+                             ) -> dict[str, list[float]]:
     """Latent prediction error relative to the latent's variance, per step of the model's
-    horizon, on perturbed-expert episodes from seeds the dataset never used."""
+    horizon, on perturbed-expert episodes from seeds the dataset never used, beside the
+    no-change and wrong-action references (:func:`latent_prediction_skill`)."""
     data_cfg = dataclasses.replace(dataset_config(cfg), episodes=cfg.heldout_episodes,
                                    shard_episodes=cfg.heldout_episodes, num_workers=1)
     # shard indices past the dataset's own are fresh seeds (see simdist.data.shard_seed)
     episodes = generate_shard(data_cfg, dataset_config(cfg).shards + 1, *load_experts(expert_path))
-    return latent_prediction_error(agent.world_model, episodes.to(agent.device),
-                                   cfg.model_horizon)
+    with torch.no_grad():
+        return latent_prediction_skill(agent.world_model, episodes.to(agent.device),
+                                       cfg.model_horizon)
+
+
+@functools.lru_cache(maxsize=None)
+def observation_layout(task: str) -> Layout:
+    """The robot observation's named groups for ``task`` (read off one world)."""
+    env = make_env(task, seed=0)
+    try:
+        return env.observation_layout
+    finally:
+        env.close()
+
+
+def ignored_inputs(cfg: Config) -> list[int]:
+    """Observation indices of ``cfg.model_ignored_observations``."""
+    layout = observation_layout(cfg.data_task)
+    return sorted(i for g in cfg.model_ignored_observations
+                  for i in range(*layout[g].indices(layout.size)))
 
 
 def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int = 1
               ) -> SimDistAgent:
     overrides = {"history": cfg.model_history} if cfg.model_history else {}
+    if cfg.model_ignored_observations:
+        overrides["ignored_inputs"] = ignored_inputs(cfg)
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
@@ -386,11 +420,14 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
             pretrain_member(cfg, buffer, data, expert_path, stage_dir, i, logger)
         members.append(str(path))
     first, last = mean_metrics(history[:50], 50), mean_metrics(history)
+    skill = heldout_prediction_skill(cfg, agent, expert_path)
     return {"path": members[0], "members": members, "agent": agent_file,
             "obs_dim": obs.shape[-1], "action_dim": data["action"].shape[-1],
             "first": first, "last": last,
             "term_shares_first": term_shares(first), "term_shares_last": term_shares(last),
-            "heldout_prediction_error_rel": heldout_prediction_error(cfg, agent, expert_path)}
+            "heldout_prediction_error_rel": skill["model"],
+            "heldout_prediction_copy_rel": skill["copy"],
+            "heldout_prediction_shuffled_rel": skill["shuffled"]}
 
 
 def load_finished_run(run: str | Path, **overrides) -> tuple[Config, dict]:
@@ -644,7 +681,10 @@ def run(cfg: Config) -> dict:
     print("pretraining: loss-term shares (last updates) "
           + ", ".join(f"{k[5:]} {100 * v:.0f}%" for k, v in pretrained["term_shares_last"].items())
           + "; held-out latent prediction error / latent variance at steps 1..H: "
-          + ", ".join(f"{e:.2f}" for e in pretrained["heldout_prediction_error_rel"]))
+          + ", ".join(f"{e:.2f}" for e in pretrained["heldout_prediction_error_rel"])
+          + (" (predicting no change: "
+             + ", ".join(f"{e:.2f}" for e in pretrained["heldout_prediction_copy_rel"]) + ")"
+             if "heldout_prediction_copy_rel" in pretrained else ""))
 
     def zero_shot(d):
         agent = planning_agent(cfg, pretrained)

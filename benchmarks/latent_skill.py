@@ -1,0 +1,81 @@
+"""How much does a pretrained SimDist dynamics model know beyond "nothing changes"? (not a
+speed benchmark)
+
+Works on a finished `recipes/simdist_quadruped.py` run (``--run``). On fresh-seed
+perturbed-expert episodes (the recipe's held-out diagnostic data: seeds the dataset never
+used), and optionally on target-domain data (``--target-data``: a round's memmap folder),
+it prints per predicted step ``i``, relative to the latent's total variance
+(``simdist.objectives.simdist_pretrain.latent_prediction_skill``; the recipe's pretrain
+stage records the same on its held-out episodes):
+
+- ``model``: the dynamics rolled out with the recorded actions;
+- ``copy``: ``z_{t+i} = z_t`` (the residual dynamics' starting point);
+- ``shuffled``: the dynamics rolled out with another window's actions (the batch permuted),
+  i.e. what the model predicts when the actions are wrong;
+- ``skill``: ``1 - model / copy``, the share of the latent's change the model explains;
+- ``action share``: ``(shuffled - model) / (copy - model)``, the part of the model's gain
+  over ``copy`` that comes from reading the actions. The planner ranks candidates only
+  through what the model does with actions.
+
+    python benchmarks/latent_skill.py --run RUN [--weights RUN/stages/round_2/simdist.pt]
+        [--target-data RUN/stages/round_2/data] [--episodes 32] [--horizon 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import simdist  # noqa: F401  (headless GL set-up before dm_control)
+import torch
+
+from simdist.data import generate_shard
+from simdist.objectives.simdist_pretrain import latent_prediction_skill
+from simdist.recipes import simdist_quadruped as recipe
+from simdist.utils import load_memmap
+
+
+def report(name: str, table: dict[str, list[float]]) -> None:
+    print(f"\n{name}")
+    print(f"{'step':>4} {'model':>7} {'copy':>7} {'shuffled':>9} {'skill':>6} {'action share':>13}")
+    for i, (m, c, s) in enumerate(zip(table["model"], table["copy"], table["shuffled"])):
+        share = (s - m) / (c - m) if c > m else float("nan")
+        print(f"{i + 1:4d} {m:7.3f} {c:7.3f} {s:9.3f} {1 - m / c:6.2f} {share:13.2f}")
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", required=True, help="a finished recipe run folder")
+    parser.add_argument("--weights", nargs="*", default=[],
+                        help="world-model files to compare (default: the pretrained one)")
+    parser.add_argument("--target-data", nargs="*", default=[],
+                        help="memmap folders of target episodes (a round's data)")
+    parser.add_argument("--episodes", type=int, default=32, help="fresh-seed sim episodes")
+    parser.add_argument("--horizon", type=int, default=5)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    cfg, pretrained = recipe.load_finished_run(Path(args.run))
+    expert = read_expert(args.run)
+    data_cfg = dataclasses.replace(recipe.dataset_config(cfg), episodes=args.episodes,
+                                   shard_episodes=args.episodes, num_workers=1)
+    sim = generate_shard(data_cfg, recipe.dataset_config(cfg).shards + 1,
+                         *recipe.load_experts(expert))
+    sets = {"held-out sim episodes": sim}
+    sets.update({f"target data {p}": load_memmap(Path(p))[:, :] for p in args.target_data})
+    for weights in args.weights or [None]:
+        agent = recipe.load_agent(cfg, pretrained, weights)
+        with torch.no_grad():
+            for name, td in sets.items():
+                report(f"{weights or 'pretrained'} on {name}",
+                       latent_prediction_skill(agent.world_model, td, args.horizon))
+
+
+def read_expert(run: str) -> str:
+    return recipe.read_json(Path(run) / "stages" / "expert.json", "expert record")["result"]["path"]
+
+
+if __name__ == "__main__":
+    main()
