@@ -55,6 +55,27 @@ def test_a_field_added_later_reads_as_its_default_in_an_older_folder(tmp_path):
         StageRunner(tmp_path, New(members=[2]))
 
 
+def test_a_field_whose_absence_meant_another_value_refuses_the_new_default(tmp_path):
+    import dataclasses
+
+    from simdist.utils.stages import ABSENT_MEANS
+
+    @dataclasses.dataclass
+    class Old:
+        seed: int = 1
+
+    @dataclasses.dataclass
+    class New:  # a behaviour switched on by default; older folders were made without it
+        seed: int = 1
+        hide: list = dataclasses.field(default_factory=lambda: ["a"],
+                                       metadata={ABSENT_MEANS: []})
+
+    StageRunner(tmp_path, Old()).close()
+    with pytest.raises(ValueError, match="changed: \\['hide'\\]"):
+        StageRunner(tmp_path, New())
+    StageRunner(tmp_path, New(hide=[])).close()  # what the folder was made with resumes
+
+
 def test_runtime_keys_may_change_between_runs_but_nothing_else(tmp_path):
     keys = ("device",)
     StageRunner(tmp_path, {"seed": 1, "device": "cpu"}, runtime_keys=keys)

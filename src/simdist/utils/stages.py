@@ -296,11 +296,21 @@ def _die_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="simdist-parent-watchdog", daemon=True).start()
 
 
+#: Field metadata key: the value a run folder saved before the field existed was made with,
+#: when that is not the field's (new) default. E.g. a field that switches a behaviour on
+#: by default: ``field(default=True, metadata={ABSENT_MEANS: False})``, so an older folder
+#: is refused under the new default instead of resuming as if it had been made with it.
+ABSENT_MEANS = "absent_means"
+
+
 def _field_defaults(config: Any) -> dict:
-    """The plain (JSON) default of every field of dataclass ``config`` that has one."""
+    """What each field of dataclass ``config`` reads as in a folder saved before the field
+    existed: its ``ABSENT_MEANS`` metadata, else its plain (JSON) default."""
     out = {}
     for f in dataclasses.fields(config):
-        if f.default is not dataclasses.MISSING:
+        if ABSENT_MEANS in f.metadata:
+            out[f.name] = f.metadata[ABSENT_MEANS]
+        elif f.default is not dataclasses.MISSING:
             out[f.name] = f.default
         elif f.default_factory is not dataclasses.MISSING:
             out[f.name] = f.default_factory()
