@@ -67,10 +67,9 @@ def main(argv=None) -> None:
     sets.update({f"target data {p}": load_memmap(Path(p))[:, :] for p in args.target_data})
     for weights in args.weights or [None]:
         agent = recipe.load_agent(cfg, pretrained, weights)
-        with torch.no_grad():
-            for name, td in sets.items():
-                report(f"{weights or 'pretrained'} on {name}",
-                       latent_prediction_skill(agent.world_model, td, args.horizon))
+        for name, td in sets.items():  # the data go where the model lives (--device cuda)
+            report(f"{weights or 'pretrained'} on {name}",
+                   latent_prediction_skill(agent.world_model, td.to(agent.device), args.horizon))
 
 
 def read_expert(run: str) -> str:

@@ -131,8 +131,11 @@ def test_history_encoder_ignores_the_inputs_it_is_told_to():
     other = obs.clone()
     other[..., 0] += 1.0  # a read input still matters
     assert not torch.allclose(enc(other), enc(obs))
-    # the mask is rebuilt from the argument, not saved: state dicts keep their keys
-    assert set(enc.state_dict()) == set(HistoryEncoder(5, 2, 8, 16, simnorm_groups=None).state_dict())
+    # the mask is saved only when inputs are ignored: other state dicts keep their keys
+    plain = HistoryEncoder(5, 2, 8, 16, simnorm_groups=None)
+    assert set(enc.state_dict()) == set(plain.state_dict()) | {"input_mask"}
+    with pytest.raises(RuntimeError, match="input_mask"):  # a reader without the mask refuses
+        plain.load_state_dict(enc.state_dict())
 
 
 @pytest.mark.parametrize("ignored, message", [([5], r"indices in \[0, 5\)"), ([-1], "indices"),

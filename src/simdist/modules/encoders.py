@@ -213,11 +213,12 @@ class HistoryEncoder(nn.Module):
         self.register_buffer("obs_mean", torch.zeros(obs_dim))
         self.register_buffer("obs_std", torch.ones(obs_dim))
         # Observation dimensions the encoder never reads (zeroed after standardisation, so
-        # they carry no information). Rebuilt from ``ignored_inputs``, not saved: state
-        # dicts keep the same keys with and without it.
+        # they carry no information). Saved only when some are ignored: state dicts without
+        # ignored inputs keep their keys, and code that predates the option refuses a file
+        # with a mask (unexpected key) instead of reading the hidden sensors.
         mask = torch.ones(obs_dim)
         mask[list(self.ignored_inputs)] = 0.0
-        self.register_buffer("input_mask", mask, persistent=False)
+        self.register_buffer("input_mask", mask, persistent=bool(self.ignored_inputs))
 
     def set_normalisation(self, mean: torch.Tensor, std: torch.Tensor, eps: float = 1e-3) -> None:
         """Standardises inputs with dataset statistics (e.g. before pretraining)."""

@@ -305,6 +305,7 @@ def latent_prediction_error(world_model: SimDistWorldModel, td: TensorDictBase,
     return (per_step / spread).tolist()
 
 
+@torch.no_grad()
 def latent_prediction_skill(world_model: SimDistWorldModel, td: TensorDictBase, horizon: int,
                             seed: int = 0) -> dict[str, list[float]]:
     """:func:`latent_prediction_error` beside two references that say what it is worth.

@@ -56,7 +56,7 @@ from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
 from simdist.utils.cli import check, check_builds, check_positive, parse_config
-from simdist.utils.stages import read_json
+from simdist.utils.stages import field_defaults, read_json
 from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
@@ -216,12 +216,16 @@ class Config:
         check(len(set(self.seeds)) == len(self.seeds), "seeds", f"repeated seeds {self.seeds}")
         check(self.ensemble_size > 1 or not self.ensemble_shared_encoder, "ensemble_shared_encoder",
               "needs --ensemble-size > 1 (one model has nothing to share)")
-        names = observation_layout(self.data_task).names()
-        unknown = [g for g in self.model_ignored_observations if g not in names]
-        check(not unknown, "model_ignored_observations",
-              f"unknown observation groups {unknown}; valid: {names}")
-        check(len(set(self.model_ignored_observations)) < len(names),
-              "model_ignored_observations", "would hide every observation group")
+        if self.model_ignored_observations:
+            layout = observation_layout(self.data_task)
+            check(layout is not None, "model_ignored_observations",
+                  f"data task {self.data_task!r} has no robot observation to hide groups of")
+            names = layout.names()
+            unknown = [g for g in self.model_ignored_observations if g not in names]
+            check(not unknown, "model_ignored_observations",
+                  f"unknown observation groups {unknown}; valid: {names}")
+            check(len(set(self.model_ignored_observations)) < len(names),
+                  "model_ignored_observations", "would hide every observation group")
         check_builds("planner_*", self.planner)
         check_builds("dataset_*", dataset_config, self)
         check_builds("device", resolve_device, self.device)
@@ -437,6 +441,8 @@ def load_finished_run(run: str | Path, **overrides) -> tuple[Config, dict]:
     stored = read_json(run / "config.json", "recipe config")
     stored = stored.get("config", stored)
     fields = {f.name for f in dataclasses.fields(Config)}
+    # a field the folder predates reads as what the folder was made with (StageRunner's rule)
+    stored = {**field_defaults(Config), **stored}
     cfg = dataclasses.replace(Config(**{k: v for k, v in stored.items() if k in fields}),
                               **overrides)
     return cfg, read_json(run / "stages" / "pretrain.json", "record of stage 'pretrain'")["result"]

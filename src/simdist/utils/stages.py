@@ -90,7 +90,7 @@ class StageRunner:
 
     def _check_config(self, config: Any, ignored: set[str]) -> dict:
         # a field added to the config after a folder was made reads as its default there
-        defaults = _field_defaults(config) if dataclasses.is_dataclass(config) else {}
+        defaults = field_defaults(config) if dataclasses.is_dataclass(config) else {}
         config = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else config
         config = json.loads(json.dumps(config, default=str))
         saved = self.out / "config.json"
@@ -303,7 +303,7 @@ def _die_with_parent(parent: int) -> None:
 ABSENT_MEANS = "absent_means"
 
 
-def _field_defaults(config: Any) -> dict:
+def field_defaults(config: Any) -> dict:
     """What each field of dataclass ``config`` reads as in a folder saved before the field
     existed: its ``ABSENT_MEANS`` metadata, else its plain (JSON) default."""
     out = {}
