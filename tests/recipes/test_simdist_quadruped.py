@@ -146,6 +146,37 @@ def test_ignored_observation_groups_reach_the_encoder():
     assert new_agent(Config(model_size="tiny"), layout.size, 12).world_model.encoder.ignored_inputs == ()
 
 
+def test_a_finished_run_from_before_a_field_existed_loads_with_what_it_was_made_with(
+        tmp_path, monkeypatch):
+    import dataclasses
+    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.utils.stages import ABSENT_MEANS
+    stored = json.loads(json.dumps(dataclasses.asdict(recipe.Config(model_size="tiny")), default=str))
+    del stored["model_history"], stored["model_ignored_observations"]  # an older folder
+    stored["a_field_since_removed"] = 1
+    (tmp_path / "stages").mkdir()
+    (tmp_path / "config.json").write_text(json.dumps({"config": stored}))
+    (tmp_path / "stages" / "pretrain.json").write_text(json.dumps({"result": {"world_model": "w.pt"}}))
+    cfg, pretrained = recipe.load_finished_run(tmp_path, seed=3)
+    assert (cfg.model_size, cfg.seed, pretrained) == ("tiny", 3, {"world_model": "w.pt"})
+    assert cfg.model_ignored_observations == [] and cfg.model_history == 0
+    # a field whose default changed reads as what older folders were made with
+    fields = {f.name: f for f in dataclasses.fields(recipe.Config)}
+    old = fields["model_history"]
+    patched = dataclasses.field(default=old.default, metadata={ABSENT_MEANS: 7})
+    patched.name, patched.type, patched._field_type = old.name, old.type, old._field_type
+    monkeypatch.setitem(recipe.Config.__dataclass_fields__, "model_history", patched)
+    assert recipe.load_finished_run(tmp_path)[0].model_history == 7
+
+
+def test_hiding_observation_groups_needs_a_robot_data_task():
+    from simdist.recipes.simdist_quadruped import Config
+    with pytest.raises(ValueError, match="model_ignored_observations"):
+        Config(model_size="tiny", data_task="cartpole-balance", model_ignored_observations=["gyro"])
+    with pytest.raises(ValueError, match="unknown observation groups"):
+        Config(model_size="tiny", model_ignored_observations=["no_such_sensor"])
+
+
 def test_dataset_dither_reaches_the_perturbation_schedule():
     from simdist.recipes.simdist_quadruped import Config, dataset_config
     assert dataset_config(Config(dataset_dither_std=0.3)).schedule.dither_std == 0.3
