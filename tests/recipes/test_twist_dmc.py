@@ -244,6 +244,27 @@ def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path):
     assert (out / "cartpole-balance_s0" / "agent.pt").exists()
 
 
+def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_path):
+    """benchmarks/pixel_dreamer_budget.py: a pixel Dreamer at another update rate, scored
+    on held-out scenes and dm_control's own, beside the blind references; a larger
+    --steps continues the same run (more updates, the first episodes' returns kept)."""
+    out = tmp_path / "budget"
+    def run(steps):
+        proc = subprocess.run(
+            [sys.executable, str(ROOT / "benchmarks" / "pixel_dreamer_budget.py"), "--preset",
+             "tiny", "--steps", str(steps), "--train-every", "10", "--out", str(out)],
+            capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        return json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10" /
+                           f"result_{steps}.json").read_text())
+    first, second = run(40), run(80)
+    assert first["updates"] == 4 and second["updates"] == 8
+    assert second["training_returns"][:2] == first["training_returns"]
+    for r in (first, second):
+        assert set(r["references"]) == {"zero", "uniform"}
+        assert len(r["heldout_scenes"]["returns"]) == len(r["own_scene"]["returns"]) == 2
+
+
 def test_no_baselines_runs_only_the_teacher_chain(tmp_path):
     proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
                 "--no-record")
