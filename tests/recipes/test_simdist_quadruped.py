@@ -148,7 +148,9 @@ def test_ignored_observation_groups_reach_the_encoder():
 
 def test_a_finished_run_from_before_a_field_existed_loads_with_what_it_was_made_with(
         tmp_path, monkeypatch):
+    import copy
     import dataclasses
+    from types import MappingProxyType
     from simdist.recipes import simdist_quadruped as recipe
     from simdist.utils.stages import ABSENT_MEANS
     stored = json.loads(json.dumps(dataclasses.asdict(recipe.Config(model_size="tiny")), default=str))
@@ -161,10 +163,8 @@ def test_a_finished_run_from_before_a_field_existed_loads_with_what_it_was_made_
     assert (cfg.model_size, cfg.seed, pretrained) == ("tiny", 3, {"world_model": "w.pt"})
     assert cfg.model_ignored_observations == [] and cfg.model_history == 0
     # a field whose default changed reads as what older folders were made with
-    fields = {f.name: f for f in dataclasses.fields(recipe.Config)}
-    old = fields["model_history"]
-    patched = dataclasses.field(default=old.default, metadata={ABSENT_MEANS: 7})
-    patched.name, patched.type, patched._field_type = old.name, old.type, old._field_type
+    patched = copy.copy(recipe.Config.__dataclass_fields__["model_history"])
+    patched.metadata = MappingProxyType({ABSENT_MEANS: 7})
     monkeypatch.setitem(recipe.Config.__dataclass_fields__, "model_history", patched)
     assert recipe.load_finished_run(tmp_path)[0].model_history == 7
 
