@@ -204,7 +204,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
         for name in args.eval_scenes if args.variant not in STATE_VARIANTS else []:
             scene = evaluate_returns(args.task, twist.policy(), twist.make_primer(),
                                      args.seed + 10_000, args.episodes, cfg.eval_steps, True,
-                                     EVAL_SCENES[name])
+                                     EVAL_SCENES[name], camera_id=cfg.camera_id)
             scenes[name] = {"mean": scene["mean"], "std": scene["std"]}
         extra = {"scenes": scenes} if scenes else {}
         if args.variant not in STATE_VARIANTS:
@@ -276,14 +276,15 @@ def train_camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Te
         path.parent.mkdir(parents=True, exist_ok=True)
         visual = recipe.training_visual(dataclasses.replace(cfg, train_camera=True))
         start = time.perf_counter()
-        torch.save(render_states(args.task, states, visual, args.seed + 40_000)[0], path)
+        torch.save(render_states(args.task, states, visual, args.seed + 40_000,
+                                 camera_id=cfg.camera_id)[0], path)
         print(f"rendered {len(states)} images under {visual} in "
               f"{time.perf_counter() - start:.0f} s", flush=True)
     return torch.load(path)
 
 
 def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, seed: int,
-                  renders: int = 1) -> torch.Tensor:
+                  renders: int = 1, camera_id: int | None = None) -> torch.Tensor:
     """Images ``[renders, N, 64, 64, 3]`` of recorded cartpole states, each under a fresh draw.
 
     Sets the physics to every stored state (cart position and the pole's angle from its
@@ -292,7 +293,7 @@ def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, 
     """
     if not task.startswith("cartpole"):
         raise ValueError(f"render_states knows cartpole's state layout only, got {task}")
-    env = control_env(task, seed, pixels=True, visual=visual)
+    env = control_env(task, seed, pixels=True, visual=visual, camera_id=camera_id)
     sim = env.base_env.sims[0]
     out = torch.zeros(renders, len(states), 64, 64, 3, dtype=torch.uint8)
     qpos = torch.stack([states[:, 0], torch.atan2(states[:, 2], states[:, 1])], -1).numpy()
@@ -388,7 +389,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
             if not path.exists():
                 torch.save(render_states(args.task, states[test],
                                          VisualRandomisation.heldout_evaluation(camera=camera),
-                                         args.seed + 20_000)[0], path)
+                                         args.seed + 20_000, camera_id=cfg.camera_id)[0], path)
             heldout[name] = torch.load(path)
     images = pixels[train][None]  # [1 + extra renders, N_train, ...]
     if args.train_camera:  # the same training states, each with a camera-pose draw
@@ -397,7 +398,8 @@ def probe(args, cfg, teacher_result: dict) -> None:
         path = cache / f"extra{args.extra_renders}_s{args.seed}.pt"
         if not path.exists():
             torch.save(render_states(args.task, states[train], VisualRandomisation.training(),
-                                     args.seed + 30_000, args.extra_renders), path)
+                                     args.seed + 30_000, args.extra_renders,
+                                     camera_id=cfg.camera_id), path)
         images = torch.cat([images, torch.load(path)])
     encoder = probe_encoder(args, cfg)
     shift = None  # one image per state: per frame; an image pair: one shift for both
@@ -535,7 +537,11 @@ def main():
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS[args.preset])
-    cfg = dataclasses.replace(cfg, student_arch=args.arch)
+    # the camera is the run's: its D was rendered from it (recipe --camera-id)
+    run_config = json.loads((args.outputs / "config.json").read_text()) \
+        if (args.outputs / "config.json").exists() else {}
+    cfg = dataclasses.replace(cfg, student_arch=args.arch,
+                              camera_id=run_config.get("camera_id"))
     teacher_result = teacher_stage(args.outputs, args.task, args.seed)
     run = {"probe": probe, "noisy": noisy}.get(args.variant, distil)
     run(args, cfg, teacher_result)

@@ -167,3 +167,25 @@ def test_bad_input_gives_clear_errors():
     td["action"] = torch.tensor([float("nan")])
     with pytest.raises(ValueError, match="non-finite value in 'action'"):
         env.step(td)
+
+
+@pytest.mark.parametrize("camera_id", [0, 1])  # cartpole: 0 fixed, 1 aims at the cart
+def test_camera_rotation_jitter_turns_fixed_and_body_aiming_cameras(camera_id):
+    def frame(angle_deg):
+        visual = VisualRandomisation(textures=None, colours=None, lighting=False, camera=True,
+                                     every_step=False, camera_position_jitter=0.0,
+                                     camera_angle_jitter_deg=angle_deg)
+        env = make_env("cartpole-balance", pixels=True, image_size=32, seed=4,
+                       visual_randomisation=visual, camera_id=camera_id)
+        env.reset()
+        sim = env.sims[0]
+        own = sim.physics.data.cam_xmat[camera_id].copy()
+        first, second = sim.render().astype(np.float32), sim.render().astype(np.float32)
+        # rendering twice does not rotate twice, and the physics keeps its own view
+        assert np.array_equal(first, second)
+        np.testing.assert_array_equal(sim.physics.data.cam_xmat[camera_id], own)
+        env.close()
+        return first
+
+    still, turned = frame(0.0), frame(10.0)
+    assert np.abs(turned - still).mean() > 2.0

@@ -273,3 +273,42 @@ def test_no_baselines_runs_only_the_teacher_chain(tmp_path):
     assert list(task) == [m for m in METHODS if "Dreamer" not in m and "SAC" not in m]
     assert not list((tmp_path / "stages").glob("*dreamer*"))
     assert not list((tmp_path / "stages").glob("*sac*"))
+
+
+def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
+    import dataclasses
+
+    import pytest
+
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    assert recipe.Config().camera_id is None  # default: the task's camera (TWIST's protocol)
+    with pytest.raises(ConfigError, match="camera_id: must be >= 0"):
+        recipe.Config(camera_id=-1)
+    cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"], camera_id=1,
+                              output_dir=str(tmp_path), jobs=1)
+    cameras = []
+    original_env, original_eval = recipe.control_env, recipe.evaluate_returns
+
+    def env_spy(*args, **kwargs):
+        if kwargs.get("pixels"):
+            cameras.append(("env", kwargs.get("camera_id")))
+        return original_env(*args, **kwargs)
+
+    def eval_spy(*args, **kwargs):
+        cameras.append(("evaluate", kwargs.get("camera_id")))
+        return original_eval(*args, **kwargs)
+    recipe.control_env, recipe.evaluate_returns = env_spy, eval_spy
+    try:
+        teacher = recipe.teacher_stage(cfg, "cartpole-balance", 0, tmp_path / "teacher")
+        recipe.student_stage(cfg, "cartpole-balance", 0, teacher, {}, tmp_path / "student")
+        recipe.pixel_dreamer_stage(cfg, "cartpole-balance", 0, None, tmp_path / "dreamer")
+    finally:
+        recipe.control_env, recipe.evaluate_returns = original_env, original_eval
+    # D, the student's and the Dreamer's evaluation, the Dreamer's training env
+    assert [kind for kind, _ in cameras] == ["env", "evaluate", "env", "evaluate"]
+    assert all(camera == 1 for _, camera in cameras), cameras
+    # a camera the task's model does not have is refused by name before any work
+    with pytest.raises(ValueError, match="camera_id 7 does not exist in 'cartpole-balance'"):
+        recipe.control_env("cartpole-balance", 0, pixels=True, camera_id=7)

@@ -6,7 +6,10 @@ copy, so draws never compound across episodes.
 
 from __future__ import annotations
 
+import contextlib
+
 import mujoco
+
 import numpy as np
 
 from simdist.envs.randomisation import DynamicsParams, VisualRandomisation
@@ -115,6 +118,11 @@ class VisualEditor:
                           "light_pos0", "light_poscom0", "cam_pos", "cam_quat", "cam_pos0",
                           "cam_poscom0", "cam_mat0")}
         self._ambient = m.vis.headlight.ambient.copy()
+        # The camera-frame rotation of the current draw. A camera that aims at a body
+        # (cartpole's "lookatcart") gets its orientation from MuJoCo every step, which
+        # overwrites cam_quat/cam_mat0, so for such a camera the rotation is applied to
+        # the rendered view instead (``jittered_view``).
+        self.view_rotation = np.eye(3)
 
     @staticmethod
     def _background_textures(m) -> list[int]:
@@ -158,6 +166,7 @@ class VisualEditor:
             jitter_mat = np.zeros(9)
             mujoco.mju_quat2Mat(jitter_mat, jitter)
             m.cam_mat0[i] = (n["cam_mat0"][i].reshape(3, 3) @ jitter_mat.reshape(3, 3)).ravel()
+            self.view_rotation = jitter_mat.reshape(3, 3)
         if (c.lighting and m.nlight) or (c.camera and m.ncam):
             # Cameras and lights are placed in mj_camlight during physics steps; without
             # this the frame would show the previous draw's lights and camera.
@@ -171,6 +180,29 @@ class VisualEditor:
                     img = np.concatenate([img, np.full((h, w, 1), 255, np.uint8)], axis=-1)
                 m.tex_data[adr:adr + h * w * nch] = img.reshape(-1)
             self._upload(self.texture_ids)
+
+    def aims_at_body(self) -> bool:
+        """True when MuJoCo orients the camera towards a body every step."""
+        mode = int(self.physics.model.cam_mode[self.camera_id])
+        return mode in (int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY),
+                        int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODYCOM))
+
+    @contextlib.contextmanager
+    def jittered_view(self):
+        """Inside, the camera's computed orientation carries this draw's rotation jitter
+        (only for a camera that aims at a body; others carry it in the model already).
+        The physics' own orientation is restored on exit, so rendering twice does not
+        rotate twice and the next step is unaffected."""
+        if not (self.config.camera and self.aims_at_body()):
+            yield
+            return
+        xmat = self.physics.data.ptr.cam_xmat
+        own = xmat[self.camera_id].copy()
+        xmat[self.camera_id] = (own.reshape(3, 3) @ self.view_rotation).ravel()
+        try:
+            yield
+        finally:
+            xmat[self.camera_id] = own
 
     def _upload(self, texture_ids) -> None:
         try:

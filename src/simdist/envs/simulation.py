@@ -10,6 +10,7 @@ reproduces a rollout exactly.
 
 from __future__ import annotations
 
+import contextlib
 from collections import deque
 
 import numpy as np
@@ -64,6 +65,10 @@ class Simulation:
         self.camera_id = spec.camera_id if camera_id is None else int(camera_id)
         kwargs = {**spec.defaults, **(task_kwargs or {})}
         self.physics, self.task, self.n_sub_steps = spec.build(target, seed, **kwargs)
+        n_cameras = self.physics.model.ncam
+        if not 0 <= self.camera_id < n_cameras:
+            raise ValueError(f"camera_id {self.camera_id} does not exist in {spec.name!r}, "
+                             f"whose model has {n_cameras} cameras (0..{n_cameras - 1})")
         self._dyn_editor = DynamicsEditor(self.physics.model.ptr)
         visual = target.visual or visual
         self._vis_editor = VisualEditor(self.physics, visual, self.camera_id) \
@@ -160,8 +165,11 @@ class Simulation:
         """Renders the current frame, uint8 ``(size, size, 3)``."""
         size = size or self.image_size
         camera = self.camera_id if camera_id is None else camera_id
+        jitter = (self._vis_editor.jittered_view() if self._vis_editor is not None
+                  and camera == self.camera_id else contextlib.nullcontext())
         try:
-            frame = self.physics.render(size, size, camera_id=camera)
+            with jitter:
+                frame = self.physics.render(size, size, camera_id=camera)
         except Exception as err:  # GL errors come in many types; name the fix.
             raise rendering_error(err) from err
         return np.ascontiguousarray(frame)  # dm_control returns a vertically flipped view

@@ -21,10 +21,13 @@ DREAMER_KEYS = ["action", "is_init", ("next", "reward"), ("next", "terminated")]
 
 def control_env(task: str, seed: int, *, pixels: bool = False,
                 visual: VisualRandomisation | None = None, num_envs: int | None = None,
-                max_episode_steps: int | None = None, primer=None, image_size: int = 64):
-    """A control-suite env with ``InitTracker`` (episode starts) and an agent's primer."""
+                max_episode_steps: int | None = None, primer=None, image_size: int = 64,
+                camera_id: int | None = None):
+    """A control-suite env with ``InitTracker`` (episode starts) and an agent's primer;
+    ``camera_id`` renders from another of the model's cameras (None: the task's)."""
     env = TransformedEnv(make_env(task, pixels=pixels, visual_randomisation=visual,
                                   num_envs=num_envs, seed=seed, image_size=image_size,
+                                  camera_id=camera_id,
                                   max_episode_steps=max_episode_steps), InitTracker())
     if primer is not None:
         env.append_transform(primer)
@@ -90,7 +93,8 @@ def returns_stats(td: TensorDict) -> dict:
 
 
 def evaluate_returns(task: str, policy, primer, seed: int, episodes: int, steps: int,
-                     pixels: bool, visual: VisualRandomisation | None) -> dict:
+                     pixels: bool, visual: VisualRandomisation | None,
+                     camera_id: int | None = None) -> dict:
     """Returns of ``policy`` over ``episodes`` parallel worlds (the same seeds for every
     method, so every method meets the same initial states and the same scenes).
 
@@ -99,7 +103,7 @@ def evaluate_returns(task: str, policy, primer, seed: int, episodes: int, steps:
     and ``seed`` alone, not on what ran before, and the caller's stream is untouched.
     """
     env = control_env(task, seed, pixels=pixels, visual=visual, num_envs=episodes,
-                      max_episode_steps=steps, primer=primer)
+                      max_episode_steps=steps, primer=primer, camera_id=camera_id)
     try:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)

@@ -123,6 +123,13 @@ class Config:
     # only). Measured (benchmarks/README.md, TWIST perception, H1; one seed): probe held-out
     # R^2 (x, cos) at 900 updates .40/.28 vs .47/.31 without; student 245 +- 28 vs 240 +- 44.
     train_camera: bool = False
+    # Which of the task model's cameras renders every pixel method's images (D, the pixel
+    # Dreamers, SAC, evaluation); None: the task's (DreamerV2's camera 0). Cartpole's
+    # camera 1 ("lookatcart") turns to the cart from 2.8 m instead of watching the rail
+    # from 4 m: at 64 px the pole is ~2 px wide instead of 1, and a 0.05 rad lean changes
+    # ~3x the image. The evaluation's camera jitter applies to either (benchmarks/README.md,
+    # "Which camera"). Not TWIST's protocol, which keeps the task's camera.
+    camera_id: int | None = None
     # Asymmetric SAC baseline (pixel actor, state critic): the same environment steps and
     # training DR as the pixel Dreamers; one SAC update of sac_batch transitions per
     # sac_train_every agent steps (an update costs about a tenth of a pixel-Dreamer one)
@@ -171,6 +178,8 @@ class Config:
                   f"must be true or false, got {getattr(self, flag)!r}")
         check_positive(self, "prefill_steps", "student_updates", "action_noise_std",
                        "student_shift_pad", "student_rotate_deg", allow_zero=True)
+        check(self.camera_id is None or self.camera_id >= 0, "camera_id",
+              f"must be >= 0 or None, got {self.camera_id}")
         check(self.student_depth is None or self.student_depth > 0, "student_depth",
               f"must be > 0 or None, got {self.student_depth}")
         check(self.student_norm in PixelEncoder.NORMS, "student_norm",
@@ -253,7 +262,8 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
     torch.manual_seed(seed)
     agent = teacher_agent(cfg, task)
     env = control_env(task, seed, pixels=True, visual=training_visual(cfg),
-                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
+                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer(),
+                      camera_id=cfg.camera_id)
     out = train_dreamer_online(agent, env, cfg.online(), stage_dir,
                                dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}",
                                seed=stage_seed(seed, f"{task}/teacher"),
@@ -277,7 +287,7 @@ def evaluate(cfg: Config, task: str, seed: int, policy, primer, pixels: bool) ->
     """Held-out scenes (textures never seen in training), the same seeds for all methods."""
     visual = VisualRandomisation.heldout_evaluation() if pixels else None
     return evaluate_returns(task, policy, primer, seed + 10_000, cfg.eval_episodes,
-                            cfg.eval_steps, pixels, visual)
+                            cfg.eval_steps, pixels, visual, camera_id=cfg.camera_id)
 
 
 def twist_config(cfg: Config, overrides: dict) -> TwistConfig:
@@ -328,7 +338,8 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
     agent = (DreamerAgent.for_pixels_state_recon(n_action, n_state, cfg.dreamer())
              if state_recon else DreamerAgent.for_pixels(n_action, cfg.dreamer())).to(cfg.device)
     env = control_env(task, seed, pixels=True, visual=visual,
-                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer())
+                      max_episode_steps=cfg.episode_steps, primer=agent.make_primer(),
+                      camera_id=cfg.camera_id)
     keys = dreamer_keys("pixels", "state") if state_recon else dreamer_keys("pixels")
     out = train_dreamer_online(agent, env, cfg.online(pixels=True), stage_dir,
                                keys, desc=stage_dir.name,
@@ -349,7 +360,7 @@ def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> 
     agent = AsymmetricSACAgent(*state_dim(task), AsymmetricSACConfig(
         depth=RSSM_SIZES[cfg.model_size]["depth"], lr=cfg.critic_lr))
     env = control_env(task, seed, pixels=True, visual=VisualRandomisation.training(),
-                      max_episode_steps=cfg.episode_steps)
+                      max_episode_steps=cfg.episode_steps, camera_id=cfg.camera_id)
     out = train_dreamer_online(agent, env, cfg.sac_online(), stage_dir,
                                dreamer_keys("pixels", "state"), desc=stage_dir.name,
                                seed=stage_seed(seed, stage_dir.name),
@@ -378,7 +389,8 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
                                           "student.pt")["state"]["twist"])
     env = control_env(task, seed + 10_000, pixels=True,
                       visual=VisualRandomisation.heldout_evaluation(),
-                      max_episode_steps=cfg.eval_steps, primer=twist.make_primer())
+                      max_episode_steps=cfg.eval_steps, primer=twist.make_primer(),
+                      camera_id=cfg.camera_id)
     path = record_student_episode(env, agent, twist, str(out / "rerun_student.rrd"),
                                   cfg.eval_steps)
     env.close()
