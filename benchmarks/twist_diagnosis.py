@@ -58,6 +58,8 @@ Usage:
     python benchmarks/twist_diagnosis.py positions --updates 300,900 --episodes 10 \
         [--lr 1e-3 --slices 16] [--init-rssm]
     python benchmarks/twist_diagnosis.py pixels --updates 300,900 [--lr 1e-3]
+    python benchmarks/twist_diagnosis.py pixels --updates 300,900 --render-camera 0 \
+        --outputs RUN_WITH_CAMERA_1 --name cam0   # same teacher and D, the other camera
     python benchmarks/twist_diagnosis.py init --updates 300,600
     python benchmarks/twist_diagnosis.py probe --updates 1500 --batch 400
     python benchmarks/twist_diagnosis.py probe --updates 300,600,900 --batch 128 \
@@ -162,6 +164,12 @@ def distil(args, cfg, teacher_result: dict) -> None:
     twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
                          args.standardise_belief, args.positions, args.init_rssm)
     recorded = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
+    if args.render_camera is not None:  # D's states seen from another camera, same DR
+        states = torch.cat([e["next", "state"] for e in recorded])
+        images = camera_renders(args, cfg, states, "D_all").split([len(e) for e in recorded])
+        recorded = [e.clone() for e in recorded]
+        for e, x in zip(recorded, images):
+            e.set(("next", "pixels"), x)
     episodes = recorded
     if args.train_camera:  # D's states re-rendered under the recipe's train_camera DR
         states = torch.cat([e["next", "state"] for e in recorded])
@@ -279,6 +287,20 @@ def train_camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Te
         torch.save(render_states(args.task, states, visual, args.seed + 40_000,
                                  camera_id=cfg.camera_id)[0], path)
         print(f"rendered {len(states)} images under {visual} in "
+              f"{time.perf_counter() - start:.0f} s", flush=True)
+    return torch.load(path)
+
+
+def camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Tensor:
+    """``states`` rendered once each under the training randomisation from camera
+    ``cfg.camera_id`` (``--render-camera``; cached in ``--work``)."""
+    path = args.work / "probe_renders" / f"camera{cfg.camera_id}_{name}_s{args.seed}.pt"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        torch.save(render_states(args.task, states, recipe.training_visual(cfg),
+                                 args.seed + 50_000, camera_id=cfg.camera_id)[0], path)
+        print(f"rendered {len(states)} images from camera {cfg.camera_id} in "
               f"{time.perf_counter() - start:.0f} s", flush=True)
     return torch.load(path)
 
@@ -534,6 +556,10 @@ def main():
                         help="probe: 2 reads each image with the one before it (late fusion)")
     parser.add_argument("--eval-scenes", nargs="*", default=[], choices=sorted(EVAL_SCENES),
                         help="pixels/init/warm: also evaluate on these scenes")
+    parser.add_argument("--render-camera", type=int, default=None,
+                        help="pixels/init/warm: re-render D's states from this camera of the "
+                             "task's model (training DR) and evaluate from it: the same "
+                             "teacher and states seen through another camera")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS[args.preset])
@@ -542,6 +568,10 @@ def main():
         if (args.outputs / "config.json").exists() else {}
     cfg = dataclasses.replace(cfg, student_arch=args.arch,
                               camera_id=run_config.get("camera_id"))
+    if args.render_camera is not None:
+        if args.variant not in ("pixels", "init", "warm"):
+            parser.error("--render-camera applies to the pixel students (pixels/init/warm)")
+        cfg = dataclasses.replace(cfg, camera_id=args.render_camera)
     teacher_result = teacher_stage(args.outputs, args.task, args.seed)
     run = {"probe": probe, "noisy": noisy}.get(args.variant, distil)
     run(args, cfg, teacher_result)
