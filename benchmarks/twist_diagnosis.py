@@ -279,7 +279,8 @@ def latent_r2(twist: TwistStudent, batch) -> dict:
 def train_camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Tensor:
     """``states`` rendered once each under the recipe's ``train_camera`` randomisation
     (cached in ``--work``)."""
-    path = args.work / "probe_renders" / f"traincam_{name}_s{args.seed}.pt"
+    camera = "" if cfg.camera_id is None else f"_camera{cfg.camera_id}"
+    path = args.work / "probe_renders" / f"traincam_{name}{camera}_s{args.seed}.pt"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         visual = recipe.training_visual(dataclasses.replace(cfg, train_camera=True))
@@ -385,13 +386,17 @@ def probe(args, cfg, teacher_result: dict) -> None:
     """
     torch.manual_seed(args.seed)
     frames = args.frames
-    if frames == 2 and (args.heldout_renders or args.train_camera or args.extra_renders):
+    if frames == 2 and (args.heldout_renders or args.train_camera or args.extra_renders
+                        or args.render_camera is not None):
         raise SystemExit("--frames 2 reads consecutive recorded images of D; it cannot be "
                          "combined with re-rendered images (--heldout-renders, "
-                         "--train-camera, --extra-renders)")
+                         "--train-camera, --extra-renders, --render-camera)")
     episodes = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
     pixels = torch.cat([e["next", "pixels"].flatten(0, -4) for e in episodes])
     states = torch.cat([e["next", "state"].flatten(0, -2) for e in episodes])
+    if args.render_camera is not None:  # D's states seen from another camera
+        pixels = camera_renders(args, cfg, states, "D_all")
+    camera = "" if cfg.camera_id is None else f"_camera{cfg.camera_id}"  # cache names
     lengths = [len(e["next", "state"].flatten(0, -2)) for e in episodes]
     first = torch.tensor([0, *lengths[:-1]]).cumsum(0)
     previous = torch.arange(len(pixels)) - 1  # the image one control step earlier
@@ -407,7 +412,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
     heldout = {}  # name -> the test states rendered under the evaluation's randomisation
     if args.heldout_renders:  # and without its camera jitter: textures alone
         for name, camera in (("heldout", True), ("heldout_nocam", False)):
-            path = cache / f"{name}_s{args.seed}.pt"
+            path = cache / f"{name}{camera}_s{args.seed}.pt"
             if not path.exists():
                 torch.save(render_states(args.task, states[test],
                                          VisualRandomisation.heldout_evaluation(camera=camera),
@@ -417,7 +422,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
     if args.train_camera:  # the same training states, each with a camera-pose draw
         images = train_camera_renders(args, cfg, states[train], "probe_train")[None]
     if args.extra_renders:
-        path = cache / f"extra{args.extra_renders}_s{args.seed}.pt"
+        path = cache / f"extra{args.extra_renders}{camera}_s{args.seed}.pt"
         if not path.exists():
             torch.save(render_states(args.task, states[train], VisualRandomisation.training(),
                                      args.seed + 30_000, args.extra_renders,
@@ -569,8 +574,8 @@ def main():
     cfg = dataclasses.replace(cfg, student_arch=args.arch,
                               camera_id=run_config.get("camera_id"))
     if args.render_camera is not None:
-        if args.variant not in ("pixels", "init", "warm"):
-            parser.error("--render-camera applies to the pixel students (pixels/init/warm)")
+        if args.variant not in ("pixels", "init", "warm", "probe"):
+            parser.error("--render-camera applies to the probe and the pixel students")
         cfg = dataclasses.replace(cfg, camera_id=args.render_camera)
     teacher_result = teacher_stage(args.outputs, args.task, args.seed)
     run = {"probe": probe, "noisy": noisy}.get(args.variant, distil)

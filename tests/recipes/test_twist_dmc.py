@@ -96,7 +96,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                            ("probe", ["--arch", "keypoints"]),
                            ("probe", ["--frames", "2", "--shift", "2"]),
                            ("warm", ["--arch", "keypoints", "--warm-updates", "2"]),
-                           ("positions", ["--slices", "3", "--init-rssm"])):
+                           ("positions", ["--slices", "3", "--init-rssm"]),
+                           # the same teacher and states through another camera
+                           ("probe", ["--render-camera", "1", "--heldout-renders"]),
+                           ("pixels", ["--render-camera", "1", "--name", "cam"])):
         diag = subprocess.run(
             [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
              "--preset", "tiny", "--outputs", str(tmp_path), "--updates", "2",
@@ -107,6 +110,15 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
         assert line["variant"] == variant and line["updates"] == 2
         if variant == "warm":  # the warm start ran, then the student from the teacher's RSSM
             assert '"warm_updates": 2' in diag.stdout and len(line["latent_r2"]) == 5
+            continue
+        if "--render-camera" in extra:  # D re-rendered once from camera 1, then reused
+            renders = tmp_path / "diagnosis" / "probe_renders"
+            assert (renders / "camera1_D_all_s0.pt").exists()
+            if variant == "probe":
+                assert (renders / "heldout_camera1_s0.pt").exists()
+                assert len(line["r2_heldout"]) == 5
+            else:
+                assert len(line["latent_r2"]) == 5 and "rendered" not in diag.stdout
             continue
         if variant == "pixels":
             assert "mean" in line and len(line["latent_r2"]) == len(line["teacher_r2"]) == 5
