@@ -396,7 +396,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
     states = torch.cat([e["next", "state"].flatten(0, -2) for e in episodes])
     if args.render_camera is not None:  # D's states seen from another camera
         pixels = camera_renders(args, cfg, states, "D_all")
-    camera = "" if cfg.camera_id is None else f"_camera{cfg.camera_id}"  # cache names
+    camera_tag = "" if cfg.camera_id is None else f"_camera{cfg.camera_id}"  # cache names
     lengths = [len(e["next", "state"].flatten(0, -2)) for e in episodes]
     first = torch.tensor([0, *lengths[:-1]]).cumsum(0)
     previous = torch.arange(len(pixels)) - 1  # the image one control step earlier
@@ -412,7 +412,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
     heldout = {}  # name -> the test states rendered under the evaluation's randomisation
     if args.heldout_renders:  # and without its camera jitter: textures alone
         for name, camera in (("heldout", True), ("heldout_nocam", False)):
-            path = cache / f"{name}{camera}_s{args.seed}.pt"
+            path = cache / f"{name}{camera_tag}_s{args.seed}.pt"
             if not path.exists():
                 torch.save(render_states(args.task, states[test],
                                          VisualRandomisation.heldout_evaluation(camera=camera),
@@ -422,7 +422,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
     if args.train_camera:  # the same training states, each with a camera-pose draw
         images = train_camera_renders(args, cfg, states[train], "probe_train")[None]
     if args.extra_renders:
-        path = cache / f"extra{args.extra_renders}{camera}_s{args.seed}.pt"
+        path = cache / f"extra{args.extra_renders}{camera_tag}_s{args.seed}.pt"
         if not path.exists():
             torch.save(render_states(args.task, states[train], VisualRandomisation.training(),
                                      args.seed + 30_000, args.extra_renders,

@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 
 import mujoco
-
 import numpy as np
 
 from simdist.envs.randomisation import DynamicsParams, VisualRandomisation
@@ -183,6 +182,8 @@ class VisualEditor:
 
     def aims_at_body(self) -> bool:
         """True when MuJoCo orients the camera towards a body every step."""
+        if self.camera_id < 0:  # MuJoCo's free camera
+            return False
         mode = int(self.physics.model.cam_mode[self.camera_id])
         return mode in (int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY),
                         int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODYCOM))

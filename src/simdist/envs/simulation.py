@@ -66,9 +66,10 @@ class Simulation:
         kwargs = {**spec.defaults, **(task_kwargs or {})}
         self.physics, self.task, self.n_sub_steps = spec.build(target, seed, **kwargs)
         n_cameras = self.physics.model.ncam
-        if not 0 <= self.camera_id < n_cameras:
+        if pixels and not -1 <= self.camera_id < n_cameras:  # -1: MuJoCo's free camera
             raise ValueError(f"camera_id {self.camera_id} does not exist in {spec.name!r}, "
-                             f"whose model has {n_cameras} cameras (0..{n_cameras - 1})")
+                             f"whose model has {n_cameras} cameras (0..{n_cameras - 1}; "
+                             f"-1 is the free camera)")
         self._dyn_editor = DynamicsEditor(self.physics.model.ptr)
         visual = target.visual or visual
         self._vis_editor = VisualEditor(self.physics, visual, self.camera_id) \
