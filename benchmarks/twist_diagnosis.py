@@ -273,6 +273,15 @@ def latent_r2(twist: TwistStudent, batch) -> dict:
             error = (decode(DreamerWorldModel.features(states)) - state).pow(2)
             r2 = 1 - error.flatten(0, 1).mean(0) / state.flatten(0, 1).var(0)
             out[name] = [round(v, 2) for v in r2.tolist()]
+        # what the deployed policy does with it: the teacher's actor (its deterministic
+        # action) on the student's latent against the same actor on the teacher's
+        actor = twist.teacher.actor
+        on_student = actor(DreamerWorldModel.features(student)).flatten(0, -2)
+        on_teacher = actor(DreamerWorldModel.features(teacher)).flatten(0, -2)
+        pair = torch.stack([on_student.flatten(), on_teacher.flatten()])
+        out["action_corr"] = round(float(torch.corrcoef(pair)[0, 1]), 2)
+        out["action_rmse"] = round(float((on_student - on_teacher).pow(2).mean().sqrt()), 3)
+        out["action_rms_teacher"] = round(float(on_teacher.pow(2).mean().sqrt()), 3)
     return out
 
 

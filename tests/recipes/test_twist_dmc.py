@@ -122,6 +122,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
             continue
         if variant == "pixels":
             assert "mean" in line and len(line["latent_r2"]) == len(line["teacher_r2"]) == 5
+            assert -1 <= line["action_corr"] <= 1 and line["action_rmse"] >= 0
             assert set(line["scenes"]) == {"training"} and "mean" in line["scenes"]["training"]
             assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
             continue
