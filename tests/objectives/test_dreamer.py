@@ -189,3 +189,36 @@ def test_state_recon_reconstructs_the_privileged_state_from_pixels():
     pixel.set_keys(observation=("next", "pixels"), reconstruction=("next", "state"))
     with pytest.raises(ValueError, match="reconstruction target"):
         pixel(td.clone())
+
+
+def test_actor_input_noise_reads_latents_with_the_stated_noise_and_zero_changes_nothing():
+    wm = _teacher()
+    td = linear_system_batch(batch=16, time=8, obs_dim=4)
+    DreamerWorldModelLoss(wm)(td)  # writes ("posterior", ...)
+
+    def run(noise):
+        torch.manual_seed(1)
+        actor = Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2)
+        critic = ScalarHead(wm.rssm.feature_dim, 16)
+        loss = DreamerActorCriticLoss(wm, actor, critic, horizon=2, actor_input_noise=noise)
+        reads, original = [], actor.distribution
+        actor.distribution = lambda features: (reads.append(features.detach()),
+                                               original(features))[1]
+        torch.manual_seed(2)
+        return loss(td), reads
+
+    (plain, plain_reads), (default, _) = run(0.0), run(0.0)
+    assert torch.equal(plain["loss_actor"], default["loss_actor"])
+    noisy, noisy_reads = run(0.5)
+    start = plain_reads[0]  # the posterior features every rollout starts from
+    error = noisy_reads[0] - start
+    spread = start.std(0)
+    live = spread > 1e-3  # features that vary across the starts
+    ratio = error[:, live].std(0) / (0.5 * spread[live])
+    assert 0.7 < ratio.mean() < 1.3  # 128 starts: the noise has the stated size
+    if (~live).any():  # a constant feature gets (almost) no noise
+        assert error[:, ~live].abs().max() < 1e-3 * 0.5 * 4 + 1e-6
+    assert not torch.equal(noisy["loss_actor"], plain["loss_actor"])
+    with pytest.raises(ValueError, match="actor_input_noise must be >= 0"):
+        DreamerActorCriticLoss(wm, Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2),
+                               ScalarHead(wm.rssm.feature_dim, 16), actor_input_noise=-0.1)

@@ -325,3 +325,18 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
     # a camera the task's model does not have is refused by name before any work
     with pytest.raises(ValueError, match="camera_id 7 does not exist in 'cartpole-balance'"):
         recipe.control_env("cartpole-balance", 0, pixels=True, camera_id=7)
+
+
+def test_teacher_actor_noise_reaches_only_the_teachers_actor_critic():
+    import pytest
+
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    assert recipe.Config().teacher_actor_noise == 0.0  # TWIST's teacher by default
+    with pytest.raises(ConfigError, match="teacher_actor_noise"):
+        recipe.Config(teacher_actor_noise=-0.1)
+    cfg = recipe.Config(**recipe.PRESETS["tiny"], teacher_actor_noise=0.3)
+    assert recipe.teacher_agent(cfg, "cartpole-balance").behaviour_loss.actor_input_noise == 0.3
+    # the pixel Dreamers are baselines, not teachers: they keep DreamerV2's actor
+    assert cfg.dreamer().actor_input_noise == 0.0

@@ -49,6 +49,9 @@ class DreamerConfig:
     exploration_noise: float = 0.3
     entropy_coeff: float = 3e-4
     imagination_starts: int | None = None  # None: every posterior state (DreamerV2)
+    # the actor reads imagined latents with this many feature stds of fresh noise
+    # (DreamerActorCriticLoss.actor_input_noise; 0: DreamerV2)
+    actor_input_noise: float = 0.0
 
 
 class DreamerPolicy(TensorDictModuleBase):
@@ -140,7 +143,8 @@ class DreamerAgent(ckpt_format.LoadableAgent):
             self.model_loss.set_keys(reconstruction=("next", reconstruct_key))
         self.behaviour_loss = DreamerActorCriticLoss(
             world_model, self.actor, self.critic, horizon=config.horizon,
-            entropy_coeff=config.entropy_coeff, max_starts=config.imagination_starts)
+            entropy_coeff=config.entropy_coeff, max_starts=config.imagination_starts,
+            actor_input_noise=config.actor_input_noise)
         self.model_optim = torch.optim.Adam(world_model.parameters(), lr=config.model_lr)
         self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
         self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)

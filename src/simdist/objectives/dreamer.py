@@ -142,6 +142,10 @@ class DreamerActorCriticLoss(SimdistLoss):
         target_tau: Polyak rate of :meth:`update_target`.
         max_starts: imagine from at most this many posterior states, drawn at random
             (``None``: all of them, as DreamerV2); cuts the cost on CPU.
+        actor_input_noise: the actor reads each imagined latent with fresh Gaussian noise
+            of this many standard deviations per feature (the starts' batch std), and the
+            rollout follows the actions it takes: a policy trained to act well when its
+            reading of the latent is off, e.g. by a student's perception (0: DreamerV2).
 
     Examples:
         >>> from simdist.modules import Actor, ScalarHead
@@ -164,8 +168,11 @@ class DreamerActorCriticLoss(SimdistLoss):
     def __init__(self, world_model: DreamerWorldModel, actor, critic, horizon: int = 15,
                  gamma: float = 0.99, lmbda: float = 0.95, entropy_coeff: float = 3e-4,
                  target_tau: float = 0.02, max_starts: int | None = None,
-                 check_inputs: bool = True):
+                 actor_input_noise: float = 0.0, check_inputs: bool = True):
         super().__init__(check_inputs)
+        if not actor_input_noise >= 0:
+            raise ValueError(f"actor_input_noise must be >= 0, got {actor_input_noise}")
+        self.actor_input_noise = float(actor_input_noise)
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
         if max_starts is not None and max_starts < 1:
@@ -193,9 +200,14 @@ class DreamerActorCriticLoss(SimdistLoss):
             state = RSSMState(state.belief[index], state.stoch[index])
         rssm = self.world_model.rssm
         features, log_probs = [state.features()], []
+        # per-feature scale of the reading noise, from the starts (no gradient)
+        noise_scale = self.actor_input_noise * features[0].std(0, keepdim=True) \
+            if self.actor_input_noise and features[0].shape[0] > 1 else None
         with hold_out_net(self.world_model):
             for _ in range(self.horizon):
-                dist = self.actor.distribution(features[-1])
+                read = features[-1] if noise_scale is None else \
+                    features[-1] + noise_scale * torch.randn_like(features[-1])
+                dist = self.actor.distribution(read)
                 action = dist.rsample()
                 log_probs.append(dist.log_prob(action))
                 belief_, logits = rssm.prior_step(state, action)

@@ -130,6 +130,12 @@ class Config:
     # ~3x the image. The evaluation's camera jitter applies to either (benchmarks/README.md,
     # "Which camera"). Not TWIST's protocol, which keeps the task's camera.
     camera_id: int | None = None
+    # The teacher's actor learns in imagination reading each latent with fresh Gaussian
+    # noise of this many feature stds (DreamerConfig.actor_input_noise), so that it acts
+    # sensibly on a latent that is somewhat wrong, as a pixel student's is; the Oracle is
+    # evaluated without noise. 0: TWIST's teacher (benchmarks/README.md, "A teacher that
+    # tolerates a student's errors").
+    teacher_actor_noise: float = 0.0
     # Asymmetric SAC baseline (pixel actor, state critic): the same environment steps and
     # training DR as the pixel Dreamers; one SAC update of sac_batch transitions per
     # sac_train_every agent steps (an update costs about a tenth of a pixel-Dreamer one)
@@ -177,6 +183,7 @@ class Config:
             check(isinstance(getattr(self, flag), bool), flag,
                   f"must be true or false, got {getattr(self, flag)!r}")
         check_positive(self, "prefill_steps", "student_updates", "action_noise_std",
+                       "teacher_actor_noise",
                        "student_shift_pad", "student_rotate_deg", allow_zero=True)
         check(self.camera_id is None or self.camera_id >= 0, "camera_id",
               f"must be >= 0 or None, got {self.camera_id}")
@@ -254,7 +261,8 @@ def state_dim(task: str) -> int:
 
 
 def teacher_agent(cfg: Config, task: str) -> DreamerAgent:
-    return DreamerAgent.for_state(*state_dim(task), cfg.dreamer()).to(cfg.device)
+    config = dataclasses.replace(cfg.dreamer(), actor_input_noise=cfg.teacher_actor_noise)
+    return DreamerAgent.for_state(*state_dim(task), config).to(cfg.device)
 
 
 def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
