@@ -164,20 +164,12 @@ def distil(args, cfg, teacher_result: dict) -> None:
     twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
                          args.standardise_belief, args.positions, args.init_rssm)
     recorded = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
+    states = torch.cat([e["next", "state"] for e in recorded])
     if args.render_camera is not None:  # D's states seen from another camera, same DR
-        states = torch.cat([e["next", "state"] for e in recorded])
-        images = camera_renders(args, cfg, states, "D_all").split([len(e) for e in recorded])
-        recorded = [e.clone() for e in recorded]
-        for e, x in zip(recorded, images):
-            e.set(("next", "pixels"), x)
+        recorded = with_pixels(recorded, camera_renders(args, cfg, states, "D_all"))
     episodes = recorded
     if args.train_camera:  # D's states re-rendered under the recipe's train_camera DR
-        states = torch.cat([e["next", "state"] for e in recorded])
-        images = train_camera_renders(args, cfg, states, "D_all").split(
-            [len(e) for e in recorded])
-        episodes = [e.clone() for e in recorded]
-        for e, x in zip(episodes, images):
-            e.set(("next", "pixels"), x)
+        episodes = with_pixels(recorded, train_camera_renders(args, cfg, states, "D_all"))
     replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
                            args.slices or cfg.student_slices)
     for episode in episodes:
@@ -285,34 +277,42 @@ def latent_r2(twist: TwistStudent, batch) -> dict:
     return out
 
 
-def train_camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Tensor:
-    """``states`` rendered once each under the recipe's ``train_camera`` randomisation
-    (cached in ``--work``)."""
-    camera = "" if cfg.camera_id is None else f"_camera{cfg.camera_id}"
-    path = args.work / "probe_renders" / f"traincam_{name}{camera}_s{args.seed}.pt"
+def cached_renders(args, states: torch.Tensor, visual: VisualRandomisation, camera_id,
+                   file: str, seed_offset: int) -> torch.Tensor:
+    """``states`` rendered once each under ``visual`` from ``camera_id``, cached in
+    ``--work``/probe_renders/``file``_s<seed>.pt (rendering D takes minutes)."""
+    path = args.work / "probe_renders" / f"{file}_s{args.seed}.pt"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
-        visual = recipe.training_visual(dataclasses.replace(cfg, train_camera=True))
         start = time.perf_counter()
-        torch.save(render_states(args.task, states, visual, args.seed + 40_000,
-                                 camera_id=cfg.camera_id)[0], path)
-        print(f"rendered {len(states)} images under {visual} in "
+        torch.save(render_states(args.task, states, visual, args.seed + seed_offset,
+                                 camera_id=camera_id)[0], path)
+        print(f"rendered {len(states)} images under {visual} from camera {camera_id} in "
               f"{time.perf_counter() - start:.0f} s", flush=True)
     return torch.load(path)
+
+
+def train_camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Tensor:
+    """``states`` under the recipe's ``train_camera`` randomisation (``--train-camera``)."""
+    camera = "" if cfg.camera_id is None else f"_camera{cfg.camera_id}"
+    visual = recipe.training_visual(dataclasses.replace(cfg, train_camera=True))
+    return cached_renders(args, states, visual, cfg.camera_id, f"traincam_{name}{camera}",
+                          40_000)
 
 
 def camera_renders(args, cfg, states: torch.Tensor, name: str) -> torch.Tensor:
-    """``states`` rendered once each under the training randomisation from camera
-    ``cfg.camera_id`` (``--render-camera``; cached in ``--work``)."""
-    path = args.work / "probe_renders" / f"camera{cfg.camera_id}_{name}_s{args.seed}.pt"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        start = time.perf_counter()
-        torch.save(render_states(args.task, states, recipe.training_visual(cfg),
-                                 args.seed + 50_000, camera_id=cfg.camera_id)[0], path)
-        print(f"rendered {len(states)} images from camera {cfg.camera_id} in "
-              f"{time.perf_counter() - start:.0f} s", flush=True)
-    return torch.load(path)
+    """``states`` under the training randomisation from camera ``cfg.camera_id``
+    (``--render-camera``)."""
+    return cached_renders(args, states, recipe.training_visual(cfg), cfg.camera_id,
+                          f"camera{cfg.camera_id}_{name}", 50_000)
+
+
+def with_pixels(episodes: list, images: torch.Tensor) -> list:
+    """Copies of ``episodes`` whose ("next", "pixels") are ``images`` (all steps, in order)."""
+    out = [e.clone() for e in episodes]
+    for e, x in zip(out, images.split([len(e) for e in episodes])):
+        e.set(("next", "pixels"), x)
+    return out
 
 
 def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, seed: int,

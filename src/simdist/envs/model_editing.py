@@ -114,13 +114,13 @@ class VisualEditor:
         self._geoms = np.flatnonzero((m.geom_matid < 0) & (m.geom_rgba[:, 3] > 0))
         self._nominal = {name: getattr(m, name).copy() for name in
                          ("mat_rgba", "geom_rgba", "light_diffuse", "light_pos",
-                          "light_pos0", "light_poscom0", "cam_pos", "cam_quat", "cam_pos0",
-                          "cam_poscom0", "cam_mat0")}
+                          "light_pos0", "light_poscom0", "cam_pos", "cam_pos0",
+                          "cam_poscom0")}
         self._ambient = m.vis.headlight.ambient.copy()
-        # The camera-frame rotation of the current draw. A camera that aims at a body
-        # (cartpole's "lookatcart") gets its orientation from MuJoCo every step, which
-        # overwrites cam_quat/cam_mat0, so for such a camera the rotation is applied to
-        # the rendered view instead (``jittered_view``).
+        # The camera-frame rotation of the current draw, applied to the rendered view
+        # (``jittered_view``) rather than to the model: MuJoCo recomputes the orientation
+        # of a camera that aims at a body (cartpole's "lookatcart") every step, so a
+        # rotation written into cam_quat/cam_mat0 would be lost for it.
         self.view_rotation = np.eye(3)
 
     @staticmethod
@@ -159,13 +159,9 @@ class VisualEditor:
             angle = np.deg2rad(rng.uniform(-1, 1) * c.camera_angle_jitter_deg)
             jitter = np.zeros(4)
             mujoco.mju_axisAngle2Quat(jitter, axis / np.linalg.norm(axis), angle)
-            quat = np.zeros(4)
-            mujoco.mju_mulQuat(quat, n["cam_quat"][i], jitter)
-            m.cam_quat[i] = quat
             jitter_mat = np.zeros(9)
             mujoco.mju_quat2Mat(jitter_mat, jitter)
-            m.cam_mat0[i] = (n["cam_mat0"][i].reshape(3, 3) @ jitter_mat.reshape(3, 3)).ravel()
-            self.view_rotation = jitter_mat.reshape(3, 3)
+            self.view_rotation = jitter_mat.reshape(3, 3)  # applied by jittered_view
         if (c.lighting and m.nlight) or (c.camera and m.ncam):
             # Cameras and lights are placed in mj_camlight during physics steps; without
             # this the frame would show the previous draw's lights and camera.
@@ -180,21 +176,12 @@ class VisualEditor:
                 m.tex_data[adr:adr + h * w * nch] = img.reshape(-1)
             self._upload(self.texture_ids)
 
-    def aims_at_body(self) -> bool:
-        """True when MuJoCo orients the camera towards a body every step."""
-        if self.camera_id < 0:  # MuJoCo's free camera
-            return False
-        mode = int(self.physics.model.cam_mode[self.camera_id])
-        return mode in (int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY),
-                        int(mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODYCOM))
-
     @contextlib.contextmanager
     def jittered_view(self):
-        """Inside, the camera's computed orientation carries this draw's rotation jitter
-        (only for a camera that aims at a body; others carry it in the model already).
-        The physics' own orientation is restored on exit, so rendering twice does not
-        rotate twice and the next step is unaffected."""
-        if not (self.config.camera and self.aims_at_body()):
+        """Inside, the camera's orientation (as MuJoCo placed it, whatever the camera's
+        mode) carries this draw's rotation jitter. The physics' own orientation is restored
+        on exit, so rendering twice does not rotate twice and the next step is unaffected."""
+        if not self.config.camera or self.camera_id < 0:  # -1: MuJoCo's free camera
             yield
             return
         xmat = self.physics.data.ptr.cam_xmat
