@@ -48,7 +48,9 @@ recorded images, per state dimension (``latent_r2``; ``teacher_r2``: the same wi
 teacher's own posterior, the ceiling). ``--train-camera`` trains the student on D with
 every image re-rendered under the ``train_camera`` randomisation (same states, actions
 and rewards: what a teacher stage with ``train_camera=True`` would record, on the same
-teacher); ``--standardise-belief`` turns on ``TwistConfig.standardise_belief``.
+teacher); ``--standardise-belief`` turns on ``TwistConfig.standardise_belief`` and
+``--action-weight W`` ``TwistConfig.action_weight`` (the teacher's actor on the student's
+latent is trained to act as on the teacher's: the latent error that moves the policy).
 
 Every figure in the README's TWIST "honest reading" comes from this script.
 
@@ -73,7 +75,7 @@ Usage:
     python benchmarks/twist_diagnosis.py warm --warm-updates 1200 --updates 0,300 \
         --arch keypoints --episodes 10
     python benchmarks/twist_diagnosis.py pixels --updates 300 --episodes 10 \
-        --train-camera | --standardise-belief --name ARM
+        --train-camera | --standardise-belief | --action-weight 10 --name ARM
 """
 
 from __future__ import annotations
@@ -129,10 +131,12 @@ STATE_VARIANTS = ("state", "positions")
 
 def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
                  standardise_belief: bool = False, positions: list[int] | None = None,
-                 init_rssm: bool = False) -> TwistStudent:
+                 init_rssm: bool = False, action_weight: float = 0.0) -> TwistStudent:
     overrides = {} if lr is None else {"lr": lr}
     if standardise_belief:
         overrides["standardise_belief"] = True
+    if action_weight:
+        overrides["action_weight"] = action_weight
     if variant in STATE_VARIANTS:
         state_dim, action_dim = recipe.state_dim(task)
         dims = list(range(state_dim)) if variant == "state" else positions
@@ -162,7 +166,8 @@ def distil(args, cfg, teacher_result: dict) -> None:
     torch.manual_seed(args.seed)
     teacher = recipe.load_teacher(cfg, args.task, teacher_result)
     twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
-                         args.standardise_belief, args.positions, args.init_rssm)
+                         args.standardise_belief, args.positions, args.init_rssm,
+                         args.action_weight)
     recorded = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
     states = torch.cat([e["next", "state"] for e in recorded])
     if args.render_camera is not None:  # D's states seen from another camera, same DR
@@ -212,6 +217,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
         print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
                           "lr": args.lr, "slices": args.slices or cfg.student_slices,
                           "init_rssm": args.init_rssm or args.variant == "init",
+                          "action_weight": args.action_weight,
                           "mean": result["mean"], "std": result["std"], **extra,
                           "train_s": round(seconds, 1),
                           "last": mean_metrics(history, 50) if history else None}),
@@ -555,6 +561,9 @@ def main():
                              "train_camera randomisation (camera-pose draw per image)")
     parser.add_argument("--standardise-belief", action="store_true",
                         help="pixels: TwistConfig.standardise_belief")
+    parser.add_argument("--action-weight", type=float, default=0.0,
+                        help="pixels: TwistConfig.action_weight (the teacher's actor on the "
+                             "student's latent should act as on the teacher's)")
     parser.add_argument("--arch", default="dreamer", choices=["dreamer", "keypoints"],
                         help="probe/pixels/warm: the encoder (PixelEncoder.arch)")
     parser.add_argument("--noise", default="0,0.1,0.3,0.5",

@@ -98,3 +98,32 @@ def test_state_term_trains_the_student_towards_the_teachers_decoding_only():
         assert torch.equal(v, frozen[k]), k
     plain = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False))
     assert "loss_state" not in plain.update(batch.clone())
+
+
+def test_action_term_is_the_teachers_actor_mismatch_and_trains_the_student_only():
+    teacher, student, _, _, batch = _setup()
+    twist = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False,
+                                                       action_weight=2.0))
+    frozen = copy.deepcopy({**teacher.world_model.state_dict(),
+                            **{f"actor.{k}": v for k, v in teacher.actor.state_dict().items()}})
+    # the reported term is ||pi_T(student posterior) - pi_T(teacher posterior)||^2, computed
+    # by hand on the same slice and the same shared noise (the same seed before each)
+    torch.manual_seed(7)
+    states = twist.distillation.filter_both(batch.clone())
+    by_hand = (teacher.actor(DreamerWorldModel.features(states[1]))
+               - teacher.actor(DreamerWorldModel.features(states[0]))).pow(2).sum(-1).mean()
+    torch.manual_seed(7)
+    first = twist.update(batch.clone())
+    assert abs(first["loss_action"] - by_hand.item()) < 1e-5
+    for _ in range(25):
+        last = twist.update(batch.clone())
+    assert last["loss_action"] < first["loss_action"]
+    # the teacher (world model and actor) is untouched and holds no gradient
+    assert all(p.grad is None for p in [*teacher.world_model.parameters(),
+                                        *teacher.actor.parameters()])
+    now = {**teacher.world_model.state_dict(),
+           **{f"actor.{k}": v for k, v in teacher.actor.state_dict().items()}}
+    for k, v in now.items():
+        assert torch.equal(v, frozen[k]), k
+    plain = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False))
+    assert "loss_action" not in plain.update(batch.clone())

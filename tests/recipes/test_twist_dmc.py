@@ -92,7 +92,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                                       "--heldout-renders"]),
                            ("probe", ["--train-camera"]),
                            ("pixels", ["--train-camera", "--standardise-belief",
-                                       "--name", "h", "--eval-scenes", "training"]),
+                                       "--action-weight", "2", "--name", "h",
+                                       "--eval-scenes", "training"]),
                            ("probe", ["--arch", "keypoints"]),
                            ("probe", ["--frames", "2", "--shift", "2"]),
                            ("warm", ["--arch", "keypoints", "--warm-updates", "2"]),
@@ -124,6 +125,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
             assert "mean" in line and len(line["latent_r2"]) == len(line["teacher_r2"]) == 5
             assert -1 <= line["action_corr"] <= 1 and line["action_rmse"] >= 0
             assert set(line["scenes"]) == {"training"} and "mean" in line["scenes"]["training"]
+            assert line["action_weight"] == 2 and line["last"]["loss_action"] >= 0
             assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
             continue
         if variant == "positions":  # exact (x, cos, sin) only, the options recorded
@@ -149,6 +151,17 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                                                 "pole angular velocity",
                                                 "pole angular velocity"]
     assert len({x["mean"] for x in lines if x["noise_x_std"] == 0}) == 1
+    # a student-specific actor by DAgger on the frozen student's latents: fitted on D,
+    # then on D plus the student's own labelled episodes
+    dagger = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "twist_dagger.py"), "--preset", "tiny",
+         "--outputs", str(tmp_path), "--iterations", "1", "--episodes-per-iter", "2",
+         "--updates", "3", "--episodes", "1"], capture_output=True, text=True, timeout=300)
+    assert dagger.returncode == 0, dagger.stderr
+    lines = [json.loads(x) for x in dagger.stdout.splitlines() if x.startswith("{")]
+    assert [x["iteration"] for x in lines] == [None, 0, 1]
+    assert lines[2]["steps"] > lines[1]["steps"] > 0 and lines[2]["collected_return"] >= 0
+    assert all(x["mse"] >= 0 for x in lines[1:])
 
 
 def _recipe_module():

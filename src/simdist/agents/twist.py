@@ -34,7 +34,12 @@ class TwistConfig:
     (``"frame"``). ``state_weight > 0`` adds a term that is **not** in TWIST: the
     teacher's frozen state decoder applied to the student's posterior features should
     give the privileged state, ``state_weight * ||dec_T(h^S, z^S) - s||^2`` (summed over
-    state dimensions), a direct signal for the student's encoder. ``standardise_belief``
+    state dimensions), a direct signal for the student's encoder. ``action_weight > 0``
+    adds another term that is not in TWIST: the teacher's frozen actor should act on the
+    student's posterior features as it acts on the teacher's, ``action_weight *
+    ||pi_T(h^S, z^S) - pi_T(h^T, z^T)||^2`` (deterministic actions, summed over action
+    dimensions): the latent error weighed by what it does to the deployed policy.
+    ``standardise_belief``
     (not in TWIST) weighs each dimension of the belief distances of Eq. 3 and Eq. 4 by the
     inverse of the teacher's batch variance of that dimension
     (:func:`~simdist.objectives.distillation.belief_distance`).
@@ -59,7 +64,13 @@ class TwistConfig:
     shift_per: str = "sequence"
     rotate_deg: float = 0.0
     state_weight: float = 0.0
+    action_weight: float = 0.0
     standardise_belief: bool = False
+
+
+def _posterior_features(batch: TensorDictBase, name: str) -> torch.Tensor:
+    """``[belief, stoch]`` of the posterior the distillation wrote under ``name``."""
+    return torch.cat([batch.get((name, "belief")), batch.get((name, "stoch"))], -1)
 
 
 class TwistStudent(ckpt_format.LoadableAgent):
@@ -130,24 +141,35 @@ class TwistStudent(ckpt_format.LoadableAgent):
         out = dict(self.distillation(batch).items())  # writes both posteriors into the batch
         total = out["loss_distillation"]
         if self.config.state_weight:
-            features = torch.cat([batch.get(("student", "belief")),
-                                  batch.get(("student", "stoch"))], -1)
-            decoded = self.teacher.world_model.decode(features)
+            decoded = self.teacher.world_model.decode(_posterior_features(batch, "student"))
             state = (decoded - batch.get(("next", self.teacher.obs_key))).pow(2).sum(-1).mean()
             total = total + self.config.state_weight * state
             out["loss_state"] = state
+        if self.config.action_weight:
+            total = total + self.config.action_weight * self._action_mismatch(batch, out)
         if self.imagined is not None:
             imagined = self.imagined(batch)
             total = total + imagined["loss_imagined"]
             out.update(imagined.items())
         self.optim.zero_grad(set_to_none=True)
         total.backward()
-        for p in self.teacher.world_model.parameters():  # frozen: drop what reached it
+        frozen = [*self.teacher.world_model.parameters(), *self.teacher.actor.parameters()]
+        for p in frozen:  # the teacher is frozen: drop what reached it
             p.grad = None
         torch.nn.utils.clip_grad_norm_(self.student.parameters(), self.config.grad_clip)
         self.optim.step()
         # Read the figures after the step: on a GPU each .item() waits for the device.
         return {k: v.item() for k, v in out.items()}
+
+    def _action_mismatch(self, batch: TensorDictBase, out: dict) -> torch.Tensor:
+        """``||pi_T(student features) - pi_T(teacher features)||^2`` on the posteriors
+        the distillation wrote into ``batch``; the gradient reaches the student only."""
+        actor = self.teacher.actor
+        with torch.no_grad():
+            target = actor(_posterior_features(batch, "teacher"))
+        mismatch = (actor(_posterior_features(batch, "student")) - target).pow(2).sum(-1).mean()
+        out["loss_action"] = mismatch
+        return mismatch
 
     def state_dict(self) -> dict:
         """The student's weights and optimiser (the teacher is saved with its own agent)."""
