@@ -48,8 +48,15 @@ def labelled(twist: TwistStudent, episodes: list) -> tuple[torch.Tensor, torch.T
         return DreamerWorldModel.features(student).flatten(0, 1), target.flatten(0, 1)
 
 
-def fit(actor, data: list, updates: int, batch: int, lr: float) -> dict:
-    """``updates`` Adam steps of squared action error on all of ``data`` so far."""
+def action_error(actor, x: torch.Tensor, y: torch.Tensor) -> float:
+    """Mean over steps of ``||actor(x) - y||^2``."""
+    with torch.no_grad():
+        return (actor(x) - y).pow(2).sum(-1).mean().item()
+
+
+def fit(actor, data: list, updates: int, batch: int, lr: float, teacher_actor) -> dict:
+    """``updates`` Adam steps of squared action error on all of ``data`` so far; reports
+    the fitted actor's error and, on the same steps, the teacher's actor's (TWIST's)."""
     x, y = (torch.cat(part) for part in zip(*data))
     optim = torch.optim.Adam(actor.parameters(), lr=lr)
     for _ in range(updates):
@@ -58,8 +65,8 @@ def fit(actor, data: list, updates: int, batch: int, lr: float) -> dict:
         optim.zero_grad()
         loss.backward()
         optim.step()
-    with torch.no_grad():
-        return {"steps": len(x), "mse": (actor(x) - y).pow(2).sum(-1).mean().item()}
+    return {"steps": len(x), "mse": action_error(actor, x, y),
+            "mse_teacher_actor": action_error(teacher_actor, x, y)}
 
 
 def main():
@@ -113,7 +120,7 @@ def main():
             env.close()
             collected = episodes["next", "reward"].sum(1).mean().item()
             data.append(labelled(twist, list(episodes.unbind(0))))
-        fitted = fit(actor, data, args.updates, args.batch, args.lr)
+        fitted = fit(actor, data, args.updates, args.batch, args.lr, twist.teacher.actor)
         print(json.dumps({"iteration": iteration, "actor": "dagger", **fitted,
                           "collected_return": collected, **evaluate(actor),
                           "seconds": round(time.perf_counter() - start)}), flush=True)

@@ -161,7 +161,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     lines = [json.loads(x) for x in dagger.stdout.splitlines() if x.startswith("{")]
     assert [x["iteration"] for x in lines] == [None, 0, 1]
     assert lines[2]["steps"] > lines[1]["steps"] > 0 and lines[2]["collected_return"] >= 0
-    assert all(x["mse"] >= 0 for x in lines[1:])
+    assert all(x["mse"] >= 0 and x["mse_teacher_actor"] >= 0 for x in lines[1:])
 
 
 def _recipe_module():
