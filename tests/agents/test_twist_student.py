@@ -127,3 +127,11 @@ def test_action_term_is_the_teachers_actor_mismatch_and_trains_the_student_only(
         assert torch.equal(v, frozen[k]), k
     plain = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False))
     assert "loss_action" not in plain.update(batch.clone())
+
+
+def test_negative_or_nan_weights_are_refused():
+    import pytest
+    for field in ("state_weight", "action_weight", "action_noise_std"):
+        for bad in (-1.0, float("nan")):
+            with pytest.raises(ValueError, match=field):
+                TwistConfig(**{field: bad})

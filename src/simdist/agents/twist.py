@@ -67,6 +67,11 @@ class TwistConfig:
     action_weight: float = 0.0
     standardise_belief: bool = False
 
+    def __post_init__(self):
+        for name in ("state_weight", "action_weight", "action_noise_std"):
+            if not getattr(self, name) >= 0:  # also refuses NaN
+                raise ValueError(f"TwistConfig.{name} must be >= 0, got {getattr(self, name)}")
+
 
 def _posterior_features(batch: TensorDictBase, name: str) -> torch.Tensor:
     """``[belief, stoch]`` of the posterior the distillation wrote under ``name``."""
