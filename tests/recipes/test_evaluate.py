@@ -1,6 +1,7 @@
 """recipes/evaluate.py: a saved agent evaluated in a custom target, with a video; bad
 values fail before any work."""
 
+import importlib
 import importlib.util
 import json
 import subprocess
@@ -99,3 +100,24 @@ def test_help_lists_every_field_with_its_default():
                  "--video", "--video-size", "--output", "--device", "--preset"):
         assert flag in proc.stdout, flag
     assert "(default: sim)" in proc.stdout and "(default: 10)" in proc.stdout
+
+
+def test_a_pixel_agent_is_evaluated_from_the_camera_its_file_records(student_file, tmp_path,
+                                                                      monkeypatch):
+    # the module, not the function of the same name that simdist.pipelines exports
+    evaluate_agent = importlib.import_module("simdist.pipelines.evaluate_agent")
+    seen = []
+    original = evaluate_agent.make_env
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("camera_id"))
+        return original(*args, **kwargs)
+    monkeypatch.setattr(evaluate_agent, "make_env", spy)
+    teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+    twist = TwistStudent(teacher, DreamerWorldModel.student(1, size="tiny"))
+    path = twist.save(tmp_path / "cam1.pt", meta={"task": "cartpole-balance", "camera_id": 1})
+    args = ["--preset", "tiny", "--episodes", "1", "--steps", "2"]
+    assert recipe.main([*args, "--checkpoint", str(path)])["camera_id"] == 1
+    assert recipe.main([*args, "--checkpoint", str(path), "--camera-id", "0"])["camera_id"] == 0
+    assert recipe.main([*args, "--checkpoint", str(student_file)])["camera_id"] is None
+    assert seen == [1, 0, None]  # what the env rendered from, not only what was reported

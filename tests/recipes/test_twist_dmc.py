@@ -335,6 +335,10 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
     # D, the student's and the Dreamer's evaluation, the Dreamer's training env
     assert [kind for kind, _ in cameras] == ["env", "evaluate", "env", "evaluate"]
     assert all(camera == 1 for _, camera in cameras), cameras
+    # the saved files record the camera, so recipes/evaluate.py sees what the recipe saw
+    from simdist.agents import load_agent
+    for saved in ("student/student_agent.pt", "dreamer/dreamer_agent.pt"):
+        assert load_agent(tmp_path / saved).checkpoint_meta["camera_id"] == 1
     # a camera the task's model does not have is refused by name before any work
     with pytest.raises(ValueError, match="camera_id 7 does not exist in 'cartpole-balance'"):
         recipe.control_env("cartpole-balance", 0, pixels=True, camera_id=7)

@@ -32,13 +32,16 @@ def uses_pixels(agent) -> bool:
 
 
 def evaluation_env(agent, task: str, target=None, episodes: int = 1, steps: int | None = None,
-                   seed: int = 0, image_size: int = 64) -> TransformedEnv:
+                   seed: int = 0, image_size: int = 64,
+                   camera_id: int | None = None) -> TransformedEnv:
     """``episodes`` batched worlds of ``task`` in ``target`` with ``InitTracker`` and the
-    agent's primer; pixels are rendered when the agent or the target needs them."""
+    agent's primer; pixels are rendered when the agent or the target needs them, from
+    ``camera_id`` (None: the task's camera)."""
     target = get_target(target)
     pixels = uses_pixels(agent) or target.visual is not None
     env = TransformedEnv(make_env(task, target=target, pixels=pixels, num_envs=episodes,
-                                  seed=seed, max_episode_steps=steps, image_size=image_size),
+                                  seed=seed, max_episode_steps=steps, image_size=image_size,
+                                  camera_id=camera_id),
                          InitTracker())
     primer = agent.make_primer()
     if primer is not None:  # a memoryless actor (Asymmetric SAC) carries nothing
@@ -57,8 +60,13 @@ def agent_policy(agent, env, planner: PlannerConfig | None = None, seed: int = 0
 
 
 def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int | None = None,
-                   seed: int = 0, planner: PlannerConfig | None = None) -> dict:
+                   seed: int = 0, planner: PlannerConfig | None = None,
+                   camera_id: int | None = None) -> dict:
     """Runs ``episodes`` episodes (one per batched world) and summarises them.
+
+    A pixel agent sees the task's camera unless ``camera_id`` names another of the
+    model's cameras (it must be the camera the agent was trained with, e.g. the TWIST
+    recipe's ``--camera-id``, which its saved files record in their meta).
 
     Torch's random draws (a Dreamer policy samples its latent, a planner seeds from
     ``seed``) come from ``seed`` inside a forked generator state, so the figures depend on
@@ -77,7 +85,7 @@ def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int 
         ('sim', 2, ['ci_high', 'ci_low', 'iqm'])
     """
     steps = int(steps or get_task(task).max_episode_steps)
-    env = evaluation_env(agent, task, target, episodes, steps, seed)
+    env = evaluation_env(agent, task, target, episodes, steps, seed, camera_id=camera_id)
     try:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
@@ -85,7 +93,8 @@ def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int 
         layout = env.base_env.observation_layout
         returns = td["next", "reward"].sum((1, 2)).tolist()
         out = {"task": task, "target": get_target(target).name, "episodes": episodes,
-               "steps": steps, "seed": seed, "returns": returns, "return": summarise(returns)}
+               "steps": steps, "seed": seed, "camera_id": camera_id, "returns": returns,
+               "return": summarise(returns)}
         if layout is not None and "command" in layout.names():
             out["progress"] = progress_stats(td, layout["command"].start)
         return out

@@ -47,6 +47,9 @@ class Config:
     video_size: int = 256  # video frame size in pixels (even)
     output: str = ""  # JSON file for the results (empty: print only)
     device: str = "cpu"  # where the agent runs ('cpu', 'cuda', 'cuda:1', 'auto')
+    # camera a pixel agent sees; None: the one its file records (the TWIST recipe's
+    # --camera-id), else the task's
+    camera_id: int | None = None
 
     def __post_init__(self):
         check_positive(self, "episodes", "video_size")
@@ -62,13 +65,20 @@ class Config:
         if self.checkpoint:  # empty only in the parser's defaults; main() requires it
             check_builds("checkpoint", self.resolve_task)
 
-    def resolve_task(self) -> str:
-        """``--task``, else the task the checkpoint records (reads and checks the file)."""
+    def meta(self) -> dict:
+        """The checkpoint's free-form meta (reads and checks the file)."""
         try:
-            meta = read_agent_checkpoint(self.checkpoint)["meta"]
+            return read_agent_checkpoint(self.checkpoint)["meta"]
         except (OSError, RuntimeError) as err:  # missing, unreadable or corrupt: say which
             raise ValueError(str(err)) from None
-        task = self.task or meta.get("task", "")
+
+    def resolve_camera(self) -> int | None:
+        """``--camera-id``, else the camera the checkpoint records (None: the task's)."""
+        return self.camera_id if self.camera_id is not None else self.meta().get("camera_id")
+
+    def resolve_task(self) -> str:
+        """``--task``, else the task the checkpoint records (reads and checks the file)."""
+        task = self.task or self.meta().get("task", "")
         if not task:
             raise ValueError(f"{self.checkpoint} records no task; pass --task")
         get_task(task)
@@ -97,7 +107,11 @@ def run(cfg: Config) -> dict:
     task = cfg.resolve_task()
     agent = load_agent(cfg.checkpoint, map_location=resolve_device(cfg.device))
     print(f"agent: {type(agent).__name__} from {cfg.checkpoint}", flush=True)
-    result = evaluate_agent(agent, task, cfg.target, cfg.episodes, cfg.steps or None, cfg.seed)
+    camera_id = cfg.resolve_camera()
+    if camera_id is not None:
+        print(f"camera: {camera_id}", flush=True)
+    result = evaluate_agent(agent, task, cfg.target, cfg.episodes, cfg.steps or None, cfg.seed,
+                            camera_id=camera_id)
     result["agent"], result["checkpoint"] = type(agent).__name__, cfg.checkpoint
     print(report(result), flush=True)
     if cfg.video:

@@ -260,6 +260,13 @@ def state_dim(task: str) -> int:
         env.close()
 
 
+def saved_meta(cfg: Config, task: str, seed: int) -> dict:
+    """What a saved agent file records besides its weights: enough for
+    ``recipes/evaluate.py`` to evaluate it as the recipe did (task, and the camera its
+    pixels came from)."""
+    return {"task": task, "seed": seed, "camera_id": cfg.camera_id}
+
+
 def teacher_agent(cfg: Config, task: str) -> DreamerAgent:
     config = dataclasses.replace(cfg.dreamer(), actor_input_noise=cfg.teacher_actor_noise)
     return DreamerAgent.for_state(*state_dim(task), config).to(cfg.device)
@@ -278,7 +285,7 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
     # a self-describing file for recipes/evaluate.py (agent.pt is the training checkpoint)
-    agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
+    agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
     return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
             "agent": str(stage_dir / "teacher_agent.pt"),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
@@ -331,7 +338,7 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
                               desc=f"{stage_dir.name}", seed=stage_seed(seed, stage_dir.name),
                               logger=make_logger(cfg.logger, cfg.output_dir))
     # deployable alone (carries the teacher's actor): recipes/evaluate.py --checkpoint
-    twist.save(stage_dir / "student_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
+    twist.save(stage_dir / "student_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
     result = evaluate(cfg, task, seed, twist.policy(), twist.make_primer(), pixels=True)
     return {**result, "checkpoint": str(stage_dir / "student.pt"),
             "agent": str(stage_dir / "student_agent.pt"),
@@ -354,10 +361,11 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
                                seed=stage_seed(seed, stage_dir.name),
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
-    agent.save(stage_dir / "dreamer_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
+    agent.save(stage_dir / "dreamer_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
     result = evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
                       pixels=True)
-    return {**result, "agent": str(stage_dir / "dreamer_agent.pt"), "episode_returns": out["episode_returns"], "updates": out["updates"],
+    return {**result, "agent": str(stage_dir / "dreamer_agent.pt"),
+            "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
 
 
@@ -374,7 +382,7 @@ def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> 
                                seed=stage_seed(seed, stage_dir.name),
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
-    agent.save(stage_dir / "sac_agent.pt", optimisers=False, meta={"task": task, "seed": seed})
+    agent.save(stage_dir / "sac_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
     result = evaluate(cfg, task, seed, agent.policy(explore=False), None, pixels=True)
     return {**result, "agent": str(stage_dir / "sac_agent.pt"),
             "checkpoint": str(stage_dir / "agent.pt"),
