@@ -117,7 +117,9 @@ def test_a_pixel_agent_is_evaluated_from_the_camera_its_file_records(student_fil
     twist = TwistStudent(teacher, DreamerWorldModel.student(1, size="tiny"))
     path = twist.save(tmp_path / "cam1.pt", meta={"task": "cartpole-balance", "camera_id": 1})
     args = ["--preset", "tiny", "--episodes", "1", "--steps", "2"]
-    assert recipe.main([*args, "--checkpoint", str(path)])["camera_id"] == 1
+    assert recipe.main([*args, "--checkpoint", str(path), "--video",
+                        str(tmp_path / "cam1.mp4")])["camera_id"] == 1
     assert recipe.main([*args, "--checkpoint", str(path), "--camera-id", "0"])["camera_id"] == 0
     assert recipe.main([*args, "--checkpoint", str(student_file)])["camera_id"] is None
-    assert seen == [1, 0, None]  # what the env rendered from, not only what was reported
+    # what the envs rendered from (the evaluation, then the video's), not only the report
+    assert seen == [1, 1, 0, None]

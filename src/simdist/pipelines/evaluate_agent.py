@@ -104,12 +104,13 @@ def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int 
 
 def record_video(agent, task: str, path: str | os.PathLike, target=None,
                  steps: int | None = None, seed: int = 0, size: int = 256,
-                 fps: float | None = None, planner: PlannerConfig | None = None) -> Path:
+                 fps: float | None = None, planner: PlannerConfig | None = None,
+                 camera_id: int | None = None) -> Path:
     """Renders one episode of the agent's deterministic policy at ``size`` px into an MP4.
 
     ``steps + 1`` frames: the reset and the state after every step, from the task's camera
-    (not the agent's own 64 px view). ``fps`` defaults to the task's control rate (real
-    time).
+    or ``camera_id`` (the one a pixel agent then acts from; not its own 64 px view).
+    ``fps`` defaults to the task's control rate (real time).
 
     Examples:
         >>> import tempfile
@@ -121,7 +122,7 @@ def record_video(agent, task: str, path: str | os.PathLike, target=None,
         ('.mp4', True)
     """
     steps = int(steps or get_task(task).max_episode_steps)
-    env = evaluation_env(agent, task, target, 1, steps, seed)
+    env = evaluation_env(agent, task, target, 1, steps, seed, camera_id=camera_id)
     sim = env.base_env.sims[0]
     frames = []
     try:

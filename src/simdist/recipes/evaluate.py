@@ -116,7 +116,7 @@ def run(cfg: Config) -> dict:
     print(report(result), flush=True)
     if cfg.video:
         path = record_video(agent, task, cfg.video, cfg.target, cfg.steps or None, cfg.seed,
-                            cfg.video_size)
+                            cfg.video_size, camera_id=camera_id)
         result["video"] = str(path)
         print(f"video: {path}", flush=True)
     if cfg.output:
