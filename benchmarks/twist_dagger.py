@@ -17,6 +17,9 @@ Usage:
     python recipes/twist_dmc.py --no-baselines                     # first, the recipe
     python benchmarks/twist_dagger.py --outputs outputs/twist_dmc --iterations 3 \
         --episodes-per-iter 8 --episodes 10
+
+The run's own settings (its ``config.json``: episode length, camera, randomisation) are
+used throughout.
 """
 
 from __future__ import annotations
@@ -30,7 +33,8 @@ from pathlib import Path
 
 import torch
 
-from simdist.agents import DreamerPolicy, TwistStudent
+from simdist.agents import TwistStudent
+from simdist.agents.twist import action_error
 from simdist.modules import DreamerWorldModel
 from simdist.pipelines import control_env, load_episodes
 from simdist.pipelines.locomotion import rollout
@@ -39,19 +43,15 @@ from simdist.recipes import twist_dmc as recipe
 
 def labelled(twist: TwistStudent, episodes: list) -> tuple[torch.Tensor, torch.Tensor]:
     """(student posterior features, the teacher's action on its own features) of every
-    step of ``episodes`` (TensorDicts of one episode each, cut to the shortest)."""
-    steps = min(len(e) for e in episodes)
-    batch = torch.stack([e[:steps] for e in episodes])
+    step of ``episodes`` (TensorDicts of one episode each, filtered one at a time so a
+    long D fits in memory)."""
+    features, targets = [], []
     with torch.no_grad():
-        teacher, student = twist.distillation.filter_both(batch)
-        target = twist.teacher.actor(DreamerWorldModel.features(teacher))
-        return DreamerWorldModel.features(student).flatten(0, 1), target.flatten(0, 1)
-
-
-def action_error(actor, x: torch.Tensor, y: torch.Tensor) -> float:
-    """Mean over steps of ``||actor(x) - y||^2``."""
-    with torch.no_grad():
-        return (actor(x) - y).pow(2).sum(-1).mean().item()
+        for episode in episodes:
+            teacher, student = twist.distillation.filter_both(episode.unsqueeze(0))
+            features.append(DreamerWorldModel.features(student)[0])
+            targets.append(twist.teacher.actor(DreamerWorldModel.features(teacher))[0])
+    return torch.cat(features), torch.cat(targets)
 
 
 def fit(actor, data: list, updates: int, batch: int, lr: float, teacher_actor) -> dict:
@@ -61,18 +61,31 @@ def fit(actor, data: list, updates: int, batch: int, lr: float, teacher_actor) -
     optim = torch.optim.Adam(actor.parameters(), lr=lr)
     for _ in range(updates):
         index = torch.randint(len(x), (batch,))
-        loss = (actor(x[index]) - y[index]).pow(2).sum(-1).mean()
+        loss = action_error(actor(x[index]), y[index])
         optim.zero_grad()
         loss.backward()
         optim.step()
-    return {"steps": len(x), "mse": action_error(actor, x, y),
-            "mse_teacher_actor": action_error(teacher_actor, x, y)}
+    with torch.no_grad():
+        return {"steps": len(x), "mse": action_error(actor(x), y).item(),
+                "mse_teacher_actor": action_error(teacher_actor(x), y).item()}
+
+
+def run_config(outputs: Path, episodes: int) -> recipe.Config:
+    """The recipe's config of the run in ``outputs`` (its config.json), with the
+    evaluation's episode count."""
+    path = outputs / "config.json"
+    if not path.exists():
+        raise FileNotFoundError(f"no recipe run at {outputs}: run `python recipes/twist_dmc.py "
+                                f"--output-dir {outputs}` first")
+    saved = json.loads(path.read_text())
+    fields = {f.name for f in dataclasses.fields(recipe.Config)}
+    return recipe.Config(**{**{k: v for k, v in saved.items() if k in fields},
+                            "eval_episodes": episodes})
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--outputs", type=Path, default=Path("outputs/twist_dmc"))
-    parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS))
     parser.add_argument("--task", default="cartpole-balance")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--student", default="twist", help="the student stage's suffix")
@@ -86,10 +99,7 @@ def main():
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
-    run_config = json.loads((args.outputs / "config.json").read_text())
-    cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS[args.preset])
-    cfg = dataclasses.replace(cfg, camera_id=run_config.get("camera_id"),
-                              eval_episodes=args.episodes)
+    cfg = run_config(args.outputs, args.episodes)  # the run's own settings and camera
     stages = args.outputs / "stages"
     name = f"{args.task}_s{args.seed}"
     teacher_result = json.loads((stages / f"{name}_teacher.json").read_text())["result"]
@@ -97,9 +107,8 @@ def main():
     actor = copy.deepcopy(twist.teacher.actor)  # starts as TWIST's deployed actor
 
     def evaluate(a) -> dict:
-        policy = DreamerPolicy(twist.student, a, "pixels", obs_event_dims=3, explore=False)
-        result = recipe.evaluate(cfg, args.task, args.seed, policy, twist.make_primer(),
-                                 pixels=True)
+        result = recipe.evaluate(cfg, args.task, args.seed, twist.policy(actor=a),
+                                 twist.make_primer(), pixels=True)
         return {"mean": result["mean"], "std": result["std"]}
 
     start = time.perf_counter()
@@ -114,9 +123,7 @@ def main():
                               num_envs=args.episodes_per_iter,
                               max_episode_steps=cfg.episode_steps,
                               primer=twist.make_primer(), camera_id=cfg.camera_id)
-            policy = DreamerPolicy(twist.student, actor, "pixels", obs_event_dims=3,
-                                   explore=False)
-            episodes = rollout(env, policy, cfg.episode_steps)
+            episodes = rollout(env, twist.policy(actor=actor), cfg.episode_steps)
             env.close()
             collected = episodes["next", "reward"].sum(1).mean().item()
             data.append(labelled(twist, list(episodes.unbind(0))))

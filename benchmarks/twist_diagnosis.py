@@ -52,7 +52,8 @@ teacher); ``--standardise-belief`` turns on ``TwistConfig.standardise_belief`` a
 ``--action-weight W`` ``TwistConfig.action_weight`` (the teacher's actor on the student's
 latent is trained to act as on the teacher's: the latent error that moves the policy).
 
-Every figure in the README's TWIST "honest reading" comes from this script.
+Every figure in the README's TWIST "honest reading" comes from this script or from
+``benchmarks/twist_dagger.py`` (a student-specific actor by DAgger).
 
 Usage:
     python recipes/twist_dmc.py                                  # first, the recipe

@@ -1,6 +1,7 @@
 """TWIST student: only the student trains; deployment runs the teacher's actor on pixels."""
 
 import copy
+import dataclasses
 
 import torch
 from tensordict import TensorDict
@@ -101,23 +102,41 @@ def test_state_term_trains_the_student_towards_the_teachers_decoding_only():
 
 
 def test_action_term_is_the_teachers_actor_mismatch_and_trains_the_student_only():
-    teacher, student, _, _, batch = _setup()
-    twist = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False,
-                                                       action_weight=2.0))
+    # two action dimensions, so a sum over them and a mean differ
+    torch.manual_seed(0)
+    teacher = DreamerAgent.for_state(5, 2, DreamerConfig(size="tiny"))
+    student = DreamerWorldModel.student(action_dim=2, size="tiny")
+    batch = TensorDict({"action": torch.rand(3, 6, 2) * 2 - 1,
+                        "is_init": torch.zeros(3, 6, 1, dtype=torch.bool),
+                        "next": {"state": torch.randn(3, 6, 5),
+                                 "pixels": torch.randint(0, 255, (3, 6, 64, 64, 3),
+                                                         dtype=torch.uint8)}}, [3, 6])
+    config = TwistConfig(horizon=2, imagined=False, action_weight=2.0)
+    twist = TwistStudent(teacher, copy.deepcopy(student), config)
     frozen = copy.deepcopy({**teacher.world_model.state_dict(),
                             **{f"actor.{k}": v for k, v in teacher.actor.state_dict().items()}})
-    # the reported term is ||pi_T(student posterior) - pi_T(teacher posterior)||^2, computed
-    # by hand on the same slice and the same shared noise (the same seed before each)
+    # the reported term is ||pi_T(student posterior) - pi_T(teacher posterior)||^2 summed
+    # over action dimensions, by hand on the same slice and shared noise (same seed)
     torch.manual_seed(7)
-    states = twist.distillation.filter_both(batch.clone())
-    by_hand = (teacher.actor(DreamerWorldModel.features(states[1]))
-               - teacher.actor(DreamerWorldModel.features(states[0]))).pow(2).sum(-1).mean()
+    t_states, s_states = twist.distillation.filter_both(batch.clone())
+    by_hand = (teacher.actor(DreamerWorldModel.features(s_states))
+               - teacher.actor(DreamerWorldModel.features(t_states))).pow(2).sum(-1).mean()
     torch.manual_seed(7)
     first = twist.update(batch.clone())
     assert abs(first["loss_action"] - by_hand.item()) < 1e-5
-    for _ in range(25):
-        last = twist.update(batch.clone())
-    assert last["loss_action"] < first["loss_action"]
+    # the weight reaches the student's step: the same start and draws without the term
+    # move the student elsewhere
+    plain = TwistStudent(teacher, copy.deepcopy(student), dataclasses.replace(
+        config, action_weight=0.0))
+    torch.manual_seed(7)
+    assert "loss_action" not in plain.update(batch.clone())
+    moved = [not torch.equal(a, b) for a, b in zip(twist.student.parameters(),
+                                                   plain.student.parameters())]
+    assert any(moved)
+    # with the term, the mismatch falls over updates (means of 5 against the first 5)
+    history = [first["loss_action"]] + [twist.update(batch.clone())["loss_action"]
+                                        for _ in range(29)]
+    assert sum(history[-5:]) < sum(history[:5])
     # the teacher (world model and actor) is untouched and holds no gradient
     assert all(p.grad is None for p in [*teacher.world_model.parameters(),
                                         *teacher.actor.parameters()])
@@ -125,13 +144,11 @@ def test_action_term_is_the_teachers_actor_mismatch_and_trains_the_student_only(
            **{f"actor.{k}": v for k, v in teacher.actor.state_dict().items()}}
     for k, v in now.items():
         assert torch.equal(v, frozen[k]), k
-    plain = TwistStudent(teacher, student, TwistConfig(horizon=2, imagined=False))
-    assert "loss_action" not in plain.update(batch.clone())
 
 
 def test_negative_or_nan_weights_are_refused():
     import pytest
     for field in ("state_weight", "action_weight", "action_noise_std"):
-        for bad in (-1.0, float("nan")):
+        for bad in (-1.0, float("nan"), float("inf")):
             with pytest.raises(ValueError, match=field):
                 TwistConfig(**{field: bad})

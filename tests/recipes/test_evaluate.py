@@ -68,6 +68,7 @@ def test_cli_reports_forward_progress_for_a_simdist_agent(tmp_path, capsys):
     (["--task", "swim"], "task: "),
     (["--video", "ep.gif"], "video: must end in .mp4"),
     (["--video-size", "63"], "video_size: must be even"),
+    (["--camera-id", "-1"], "camera_id: must be >= 0"),
 ])
 def test_bad_values_fail_before_any_work(student_file, tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exit_:
@@ -97,7 +98,8 @@ def test_help_lists_every_field_with_its_default():
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     for flag in ("--checkpoint", "--task", "--target", "--episodes", "--steps", "--seed",
-                 "--video", "--video-size", "--output", "--device", "--preset"):
+                 "--video", "--video-size", "--output", "--device", "--preset",
+                 "--camera-id"):
         assert flag in proc.stdout, flag
     assert "(default: sim)" in proc.stdout and "(default: 10)" in proc.stdout
 
@@ -123,3 +125,12 @@ def test_a_pixel_agent_is_evaluated_from_the_camera_its_file_records(student_fil
     assert recipe.main([*args, "--checkpoint", str(student_file)])["camera_id"] is None
     # what the envs rendered from (the evaluation, then the video's), not only the report
     assert seen == [1, 1, 0, None]
+    # the Python API reads the file's camera too; not for another task's model
+    from simdist.agents import load_agent
+    loaded = load_agent(path)
+    seen.clear()
+    assert evaluate_agent.evaluate_agent(loaded, "cartpole-balance", episodes=1,
+                                         steps=2)["camera_id"] == 1
+    assert seen == [1]
+    assert evaluate_agent.agent_camera(loaded, "cartpole-swingup") is None
+    assert evaluate_agent.agent_camera(loaded, "cartpole-balance", 0) == 0

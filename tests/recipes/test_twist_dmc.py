@@ -154,14 +154,21 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     # a student-specific actor by DAgger on the frozen student's latents: fitted on D,
     # then on D plus the student's own labelled episodes
     dagger = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_dagger.py"), "--preset", "tiny",
-         "--outputs", str(tmp_path), "--iterations", "1", "--episodes-per-iter", "2",
-         "--updates", "3", "--episodes", "1"], capture_output=True, text=True, timeout=300)
+        [sys.executable, str(ROOT / "benchmarks" / "twist_dagger.py"), "--outputs",
+         str(tmp_path), "--iterations", "1", "--episodes-per-iter", "2", "--updates", "3",
+         "--episodes", "1"], capture_output=True, text=True, timeout=300)
     assert dagger.returncode == 0, dagger.stderr
     lines = [json.loads(x) for x in dagger.stdout.splitlines() if x.startswith("{")]
     assert [x["iteration"] for x in lines] == [None, 0, 1]
     assert lines[2]["steps"] > lines[1]["steps"] > 0 and lines[2]["collected_return"] >= 0
-    assert all(x["mse"] >= 0 and x["mse_teacher_actor"] >= 0 for x in lines[1:])
+    # the labels are the teacher's actions on its own latent, not the student's
+    assert all(x["mse"] >= 0 and x["mse_teacher_actor"] > 0 for x in lines[1:])
+    # the run's own settings: tiny episodes (the default preset's are 500 steps)
+    assert lines[2]["steps"] - lines[1]["steps"] == 2 * recipe_cfg_episode_steps(tmp_path)
+
+
+def recipe_cfg_episode_steps(outputs) -> int:
+    return json.loads((outputs / "config.json").read_text())["episode_steps"]
 
 
 def _recipe_module():

@@ -8,6 +8,7 @@ and acts with the teacher's actor on the student's latent (TWIST Sec. IV deploym
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,13 +70,19 @@ class TwistConfig:
 
     def __post_init__(self):
         for name in ("state_weight", "action_weight", "action_noise_std"):
-            if not getattr(self, name) >= 0:  # also refuses NaN
-                raise ValueError(f"TwistConfig.{name} must be >= 0, got {getattr(self, name)}")
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"TwistConfig.{name} must be finite and >= 0, got {value}")
 
 
-def _posterior_features(batch: TensorDictBase, name: str) -> torch.Tensor:
-    """``[belief, stoch]`` of the posterior the distillation wrote under ``name``."""
-    return torch.cat([batch.get((name, "belief")), batch.get((name, "stoch"))], -1)
+def action_error(actions: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``||actions - target||^2`` summed over action dimensions, averaged over the rest.
+
+    Examples:
+        >>> action_error(torch.tensor([[0.5, 0.0], [0.0, 0.0]]), torch.zeros(2, 2)).item()
+        0.125
+    """
+    return (actions - target).pow(2).sum(-1).mean()
 
 
 class TwistStudent(ckpt_format.LoadableAgent):
@@ -146,7 +153,7 @@ class TwistStudent(ckpt_format.LoadableAgent):
         out = dict(self.distillation(batch).items())  # writes both posteriors into the batch
         total = out["loss_distillation"]
         if self.config.state_weight:
-            decoded = self.teacher.world_model.decode(_posterior_features(batch, "student"))
+            decoded = self.teacher.world_model.decode(DreamerWorldModel.features(batch["student"]))
             state = (decoded - batch.get(("next", self.teacher.obs_key))).pow(2).sum(-1).mean()
             total = total + self.config.state_weight * state
             out["loss_state"] = state
@@ -171,8 +178,8 @@ class TwistStudent(ckpt_format.LoadableAgent):
         the distillation wrote into ``batch``; the gradient reaches the student only."""
         actor = self.teacher.actor
         with torch.no_grad():
-            target = actor(_posterior_features(batch, "teacher"))
-        mismatch = (actor(_posterior_features(batch, "student")) - target).pow(2).sum(-1).mean()
+            target = actor(DreamerWorldModel.features(batch["teacher"]))
+        mismatch = action_error(actor(DreamerWorldModel.features(batch["student"])), target)
         out["loss_action"] = mismatch
         return mismatch
 
@@ -184,16 +191,20 @@ class TwistStudent(ckpt_format.LoadableAgent):
         self.student.load_state_dict(state["student"])
         self.optim.load_state_dict(state["optim"])
 
-    def policy(self, explore: bool = False, action_spec=None) -> DreamerPolicy:
+    def policy(self, explore: bool = False, action_spec=None, actor=None) -> DreamerPolicy:
         """Pixels -> student latent -> teacher actor (uses ``self.make_primer()`` state).
 
         Args:
             explore: add the teacher's exploration noise (off for deployment).
             action_spec: the env's TorchRL action spec, checked to be ``[-1, 1]`` (the
                 teacher actor's range; see :meth:`DreamerAgent.policy`).
+            actor: another actor on the student's latent (e.g. one fitted by
+                ``benchmarks/twist_dagger.py``); default: the teacher's, as in TWIST.
         """
         check_unit_box(action_spec)
-        return DreamerPolicy(self.student, self.teacher.actor, "pixels", obs_event_dims=3,
+        return DreamerPolicy(self.student, self.teacher.actor if actor is None else actor,
+                             "pixels",
+                             obs_event_dims=3,
                              exploration_noise=self.teacher.config.exploration_noise,
                              explore=explore)
 

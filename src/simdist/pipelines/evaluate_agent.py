@@ -31,6 +31,25 @@ def uses_pixels(agent) -> bool:
     return isinstance(agent, TwistStudent) or getattr(agent, "obs_key", None) == "pixels"
 
 
+def agent_camera(agent, task: str, camera_id: int | None = None) -> int | None:
+    """``camera_id``, else for a pixel agent the camera its file records for ``task``
+    (``checkpoint_meta["camera_id"]``, written e.g. by the TWIST recipe's ``--camera-id``
+    runs), else None (the task's camera).
+
+    Examples:
+        >>> from simdist.agents import DreamerAgent, DreamerConfig
+        >>> agent = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+        >>> agent_camera(agent, "cartpole-balance") is None, agent_camera(agent, "x", 1)
+        (True, 1)
+    """
+    if camera_id is not None or not uses_pixels(agent):
+        return camera_id
+    meta = getattr(agent, "checkpoint_meta", None) or {}
+    if meta.get("task", task) != task:  # recorded for another task's model
+        return None
+    return meta.get("camera_id")
+
+
 def evaluation_env(agent, task: str, target=None, episodes: int = 1, steps: int | None = None,
                    seed: int = 0, image_size: int = 64,
                    camera_id: int | None = None) -> TransformedEnv:
@@ -64,9 +83,9 @@ def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int 
                    camera_id: int | None = None) -> dict:
     """Runs ``episodes`` episodes (one per batched world) and summarises them.
 
-    A pixel agent sees the task's camera unless ``camera_id`` names another of the
-    model's cameras (it must be the camera the agent was trained with, e.g. the TWIST
-    recipe's ``--camera-id``, which its saved files record in their meta).
+    A pixel agent sees ``camera_id``, else the camera its file records for this task
+    (:func:`agent_camera`: the TWIST recipe's ``--camera-id`` runs record theirs), else
+    the task's camera.
 
     Torch's random draws (a Dreamer policy samples its latent, a planner seeds from
     ``seed``) come from ``seed`` inside a forked generator state, so the figures depend on
@@ -85,6 +104,7 @@ def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int 
         ('sim', 2, ['ci_high', 'ci_low', 'iqm'])
     """
     steps = int(steps or get_task(task).max_episode_steps)
+    camera_id = agent_camera(agent, task, camera_id)
     env = evaluation_env(agent, task, target, episodes, steps, seed, camera_id=camera_id)
     try:
         with torch.random.fork_rng(devices=[]):
@@ -109,7 +129,8 @@ def record_video(agent, task: str, path: str | os.PathLike, target=None,
     """Renders one episode of the agent's deterministic policy at ``size`` px into an MP4.
 
     ``steps + 1`` frames: the reset and the state after every step, from the task's camera
-    or ``camera_id`` (the one a pixel agent then acts from; not its own 64 px view).
+    or the camera a pixel agent acts from (``camera_id``, else :func:`agent_camera`; not
+    its own 64 px view).
     ``fps`` defaults to the task's control rate (real time).
 
     Examples:
@@ -122,7 +143,8 @@ def record_video(agent, task: str, path: str | os.PathLike, target=None,
         ('.mp4', True)
     """
     steps = int(steps or get_task(task).max_episode_steps)
-    env = evaluation_env(agent, task, target, 1, steps, seed, camera_id=camera_id)
+    env = evaluation_env(agent, task, target, 1, steps, seed,
+                         camera_id=agent_camera(agent, task, camera_id))
     sim = env.base_env.sims[0]
     frames = []
     try:

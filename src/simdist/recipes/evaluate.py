@@ -24,7 +24,7 @@ import torch
 from simdist.agents import load_agent
 from simdist.agents.checkpoint import read_agent_checkpoint
 from simdist.envs import get_target, get_task
-from simdist.pipelines.evaluate_agent import evaluate_agent, record_video
+from simdist.pipelines.evaluate_agent import agent_camera, evaluate_agent, record_video
 from simdist.utils import resolve_device, write_json_atomic
 from simdist.utils.cli import check, check_builds, check_positive, parse_config
 from simdist.viz.video import INSTALL_HINT, video_backend_available
@@ -62,23 +62,18 @@ class Config:
             check(self.video.endswith(".mp4"), "video", f"must end in .mp4, got {self.video!r}")
             check(video_backend_available(), "video", INSTALL_HINT)
         check_builds("device", resolve_device, self.device)
+        if self.camera_id is not None:
+            check(self.camera_id >= 0, "camera_id", f"must be >= 0, got {self.camera_id}")
         if self.checkpoint:  # empty only in the parser's defaults; main() requires it
             check_builds("checkpoint", self.resolve_task)
 
-    def meta(self) -> dict:
-        """The checkpoint's free-form meta (reads and checks the file)."""
-        try:
-            return read_agent_checkpoint(self.checkpoint)["meta"]
-        except (OSError, RuntimeError) as err:  # missing, unreadable or corrupt: say which
-            raise ValueError(str(err)) from None
-
-    def resolve_camera(self) -> int | None:
-        """``--camera-id``, else the camera the checkpoint records (None: the task's)."""
-        return self.camera_id if self.camera_id is not None else self.meta().get("camera_id")
-
     def resolve_task(self) -> str:
         """``--task``, else the task the checkpoint records (reads and checks the file)."""
-        task = self.task or self.meta().get("task", "")
+        try:
+            meta = read_agent_checkpoint(self.checkpoint)["meta"]
+        except (OSError, RuntimeError) as err:  # missing, unreadable or corrupt: say which
+            raise ValueError(str(err)) from None
+        task = self.task or meta.get("task", "")
         if not task:
             raise ValueError(f"{self.checkpoint} records no task; pass --task")
         get_task(task)
@@ -107,7 +102,7 @@ def run(cfg: Config) -> dict:
     task = cfg.resolve_task()
     agent = load_agent(cfg.checkpoint, map_location=resolve_device(cfg.device))
     print(f"agent: {type(agent).__name__} from {cfg.checkpoint}", flush=True)
-    camera_id = cfg.resolve_camera()
+    camera_id = agent_camera(agent, task, cfg.camera_id)  # --camera-id, else the file's
     if camera_id is not None:
         print(f"camera: {camera_id}", flush=True)
     result = evaluate_agent(agent, task, cfg.target, cfg.episodes, cfg.steps or None, cfg.seed,

@@ -261,9 +261,9 @@ def state_dim(task: str) -> int:
 
 
 def saved_meta(cfg: Config, task: str, seed: int) -> dict:
-    """What a saved agent file records besides its weights: enough for
-    ``recipes/evaluate.py`` to evaluate it as the recipe did (task, and the camera its
-    pixels came from)."""
+    """What a saved agent file records besides its weights: the task, the seed and the
+    camera its pixels came from, which ``recipes/evaluate.py`` reads (the evaluation
+    scenes and seeds are its own flags)."""
     return {"task": task, "seed": seed, "camera_id": cfg.camera_id}
 
 
