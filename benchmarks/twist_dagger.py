@@ -109,7 +109,7 @@ def main():
     def evaluate(a) -> dict:
         result = recipe.evaluate(cfg, args.task, args.seed, twist.policy(actor=a),
                                  twist.make_primer(), pixels=True)
-        return {"mean": result["mean"], "std": result["std"]}
+        return {"mean": result["mean"], "std": result["std"], "returns": result["returns"]}
 
     start = time.perf_counter()
     print(json.dumps({"iteration": None, "actor": "teacher", **evaluate(twist.teacher.actor)}),

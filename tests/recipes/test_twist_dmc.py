@@ -160,6 +160,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert dagger.returncode == 0, dagger.stderr
     lines = [json.loads(x) for x in dagger.stdout.splitlines() if x.startswith("{")]
     assert [x["iteration"] for x in lines] == [None, 0, 1]
+    assert all(len(x["returns"]) == 1 for x in lines)  # per episode, for paired statistics
     assert lines[2]["steps"] > lines[1]["steps"] > 0 and lines[2]["collected_return"] >= 0
     # the labels are the teacher's actions on its own latent, not the student's
     assert all(x["mse"] >= 0 and x["mse_teacher_actor"] > 0 for x in lines[1:])
