@@ -202,9 +202,8 @@ class TwistStudent(ckpt_format.LoadableAgent):
                 ``benchmarks/twist_dagger.py``); default: the teacher's, as in TWIST.
         """
         check_unit_box(action_spec)
-        return DreamerPolicy(self.student, self.teacher.actor if actor is None else actor,
-                             "pixels",
-                             obs_event_dims=3,
+        actor = self.teacher.actor if actor is None else actor
+        return DreamerPolicy(self.student, actor, "pixels", obs_event_dims=3,
                              exploration_noise=self.teacher.config.exploration_noise,
                              explore=explore)
 
