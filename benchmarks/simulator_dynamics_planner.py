@@ -36,7 +36,7 @@ from simdist.envs import get_target
 from simdist.pipelines import locomotion_env, progress_stats, rollout
 from simdist.pipelines import SimulatorPlanningPolicy
 from simdist.recipes import simdist_quadruped as recipe
-from simdist.utils import save_memmap
+from simdist.utils import save_memmap, write_json_atomic
 
 
 def main(argv=None):
@@ -63,6 +63,9 @@ def main(argv=None):
     parser.add_argument("--save-rollouts", default=None, metavar="DIR",
                         help="write each rollout (the recipe's target-data keys) to "
                              "DIR/<variant>_<domain> as a memmap folder")
+    parser.add_argument("--save-json", default=None, metavar="FILE",
+                        help="also write every evaluation's statistics, per-episode "
+                             "fractions included, to FILE (to pool seeds or pair variants)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     run = Path(args.run)
@@ -81,6 +84,7 @@ def main(argv=None):
           "steps, simulator dynamics + pretrained heads")
     print("| variant | domain | % of commanded distance [95% CI] (IQM) | s |")
     print("| --- | --- | --- | --- |")
+    saved = {}
     for name, overrides in variants:
         planner = dataclasses.replace(cfg.planner(), **overrides)
         for domain in args.domains:
@@ -101,6 +105,9 @@ def main(argv=None):
             print(f"| {name} {overrides or ''} | {domain} | {100 * stats['mean_fraction']:.0f}% "
                   f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) | "
                   f"{time.perf_counter() - start:.0f} |", flush=True)
+            if args.save_json:  # rewritten after each evaluation: a killed run keeps the rest
+                saved.setdefault(name, {})[domain] = {"overrides": overrides, **stats}
+                write_json_atomic(Path(args.save_json), saved)
 
 
 def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, worlds: int,
