@@ -145,12 +145,14 @@ class Config:
     heldout_episodes: int = 32  # fresh-seed episodes for the latent prediction diagnostic
     slice_len: int = 16  # steps per training slice
     batch_slices: int = 32  # slices per update
-    # latent MPPI: planning horizon (steps; 10 = 0.2 s at 50 Hz). At 5 the frozen terminal
-    # value decides almost alone and the finetuned dynamics barely change the choice: on
-    # slippery_slope (seed 0, 32 episodes, benchmarks/README.md "Planning horizon") the
-    # finetuned model reaches -22% of the commanded distance at H5, -3% at H10, +10% at
-    # H20 (sim 97% at H5 and H20). H10 costs 2x the planner time of H5, H20 4x.
-    planner_horizon: int = 10
+    # latent MPPI: planning horizon (steps; 20 = 0.4 s at 50 Hz). The longer the plan, the
+    # more of a candidate's score the (finetuned) dynamics decide rather than the frozen
+    # terminal value: on slippery_slope, three seeds of the current pretraining, SimDist
+    # after 8 minutes of target data reaches 31% [26, 37] of the commanded distance at H20
+    # against 21% [15, 28] at H10 (paired +10 [3, 17]; sim 94% vs 92%; benchmarks/README.md,
+    # "The simulator ceiling of today's pretraining, and a 20-step planner"). Planner time
+    # grows linearly with it.
+    planner_horizon: int = 20
     planner_samples: int = 64  # latent MPPI: action sequences per iteration
     planner_iterations: int = 3  # latent MPPI: refinement iterations per step
     planner_elites: int = 8  # latent MPPI: elites kept per iteration
