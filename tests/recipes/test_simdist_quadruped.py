@@ -63,8 +63,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
         assert (tmp_path / "logs" / "scalars" / f"{scalar}.csv").exists(), scalar
     assert (tmp_path / "training_curves.png").stat().st_size > 0
 
-    # a rerun with torch's default thread count reuses every stage (threads are runtime)
-    again = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
+    # a rerun with torch's default thread count and another number of dataset workers
+    # reuses every stage (both are runtime settings: shards are the same bytes either way)
+    again = _run("--preset", "tiny", "--expert", tiny_expert, "--dataset-workers", 2,
+                 "--output-dir", tmp_path)
     assert again.returncode == 0 and again.stdout.count("already done") == len(stages) + 2
     assert json.loads((tmp_path / "results.json").read_text())["curves"] == curves
     changed = _run("--preset", "tiny", "--episodes", 3, "--expert", tiny_expert,

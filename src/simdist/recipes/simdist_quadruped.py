@@ -98,7 +98,9 @@ class Config:
     # perfect dynamics give?"); the whole default run measured 24.5 min on 2 quiet cores).
     dataset_episodes: int = 1536
     dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
-    dataset_workers: int = 1  # processes generating shards
+    # processes generating shards. Not part of the results: a shard is the same bytes
+    # whichever process makes it, so a run may resume (or be copied) with another count.
+    dataset_workers: int = 1
     # Gaussian action noise on every step outside the perturbation bursts
     # (PerturbationSchedule.dither_std; 0: the reference schedule), so the dynamics see
     # small action changes like the planner's proposal noise. 0.3 measured (3 seeds):
@@ -664,9 +666,10 @@ def run(cfg: Config) -> dict:
     out = Path(cfg.output_dir)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    # finished stages are skipped when rerun; device and threads may differ from the first run's
+    # finished stages are skipped when rerun; device, threads and dataset workers may differ
+    # from the first run's
     runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
-                         runtime_keys=("device", "logger", "threads"))
+                         runtime_keys=("device", "logger", "threads", "dataset_workers"))
     logger = make_logger(cfg.logger, out)
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
