@@ -95,7 +95,8 @@ class Config:
     # 1536 + 12000 (was 768 + 4000) ranks the planner's candidates better (Spearman .13 ->
     # .22 against the simulator) and lifts SimDist on slippery_slope from +3% to +18% of the
     # commanded distance at 8 min (3 seeds, disjoint CIs; benchmarks/README.md, "What would
-    # perfect dynamics give?"); the whole default run measured 24.5 min on 2 quiet cores).
+    # perfect dynamics give?"); the whole default run, planner H20, measured 27.9 min end to
+    # end on 2 quiet cores, 2026-11-26).
     dataset_episodes: int = 1536
     dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
     # processes generating shards. Not part of the results: a shard is the same bytes
