@@ -23,6 +23,7 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -90,19 +91,37 @@ def finetune(args) -> None:
     data = torch.cat([load_memmap(Path(p))[:, :].select(*recipe.TARGET_KEYS)
                       for p in args.train], 0)
     buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+    eval_at = sorted(set(args.eval_at or [args.updates]))
+    if eval_at[-1] > args.updates or eval_at[0] < 0:
+        raise SystemExit(f"--eval-at must lie in [0, --updates={args.updates}], got {eval_at}")
+    evaluations = {}
+
+    def evaluate(done):
+        stats, _ = recipe.evaluate_planner(cfg, agent, cfg.target)
+        low, high = stats["ci_fraction"]
+        print(f"after {done} updates, planner in {cfg.target}: {100 * stats['mean_fraction']:.0f}% "
+              f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) of the "
+              "commanded distance", flush=True)
+        evaluations[done] = {"mean_fraction": stats["mean_fraction"],
+                             "fraction": [float(f) for f in stats["fraction"]]}
+
     start = time.perf_counter()
-    for i in range(args.updates):
+    for i in range(args.updates + 1):
+        if i in eval_at:
+            evaluate(i)
+        if i == args.updates:
+            break
         metrics = agent.finetune_update(buffer.sample().reshape(-1, cfg.slice_len))
         if i % 1000 == 0 or i == args.updates - 1:
             print(f"update {i}: consistency {metrics['loss_consistency']:.4f}", flush=True)
-    print(f"{args.updates} updates on {data.numel()} steps in {time.perf_counter() - start:.0f} s")
+    print(f"{args.updates} updates on {data.numel()} steps and {len(eval_at)} evaluations in "
+          f"{time.perf_counter() - start:.0f} s")
     report("after")
     if args.save:
         torch.save(agent.world_model.state_dict(), args.save)
-    stats, _ = recipe.evaluate_planner(cfg, agent, cfg.target)
-    low, high = stats["ci_fraction"]
-    print(f"planner in {cfg.target}: {100 * stats['mean_fraction']:.0f}% [{100 * low:.0f}, "
-          f"{100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) of the commanded distance")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"lr": cfg.finetune_lr, "train": args.train,
+                                               "evaluations": evaluations}, indent=1))
 
 
 def main(argv=None):
@@ -126,6 +145,9 @@ def main(argv=None):
     f.add_argument("--probe", nargs="*", default=[], help="folders to measure prediction error on")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--save", default=None)
+    f.add_argument("--eval-at", type=int, nargs="*", default=None,
+                   help="evaluate the planner after these update counts (default: --updates)")
+    f.add_argument("--json", default=None, help="write each evaluation's per-episode fractions here")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     (collect if args.step == "collect" else finetune)(args)

@@ -81,6 +81,9 @@ def main(argv=None):
     parser.add_argument("--calibration", action="store_true",
                         help="also print the planner's predicted reward along its chosen plan "
                              "against the reward the env then paid (see reward_calibration)")
+    parser.add_argument("--save-json", default=None,
+                        help="write every variant's per-episode fractions per domain here "
+                             "(for paired comparisons on the same worlds)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     run = Path(args.run)
@@ -93,6 +96,7 @@ def main(argv=None):
     print(f"run {run} (seed {cfg.seed}), {cfg.episodes} episodes of {cfg.episode_steps} steps")
     print("| variant | domain | % of commanded distance [95% CI] (IQM) | s |")
     print("| --- | --- | --- | --- |")
+    saved = {}
     for name, overrides in variants:
         planner = dataclasses.replace(cfg.planner(), **(overrides or {}))
         for domain in args.domains:
@@ -107,6 +111,9 @@ def main(argv=None):
             td = rollout(env, policy, cfg.episode_steps)
             stats = progress_stats(td, env.base_env.observation_layout["command"].start)
             env.close()
+            saved.setdefault(name, {})[domain] = [float(f) for f in stats["fraction"]]
+            if args.save_json:  # rewritten after every evaluation: a killed run keeps its rows
+                Path(args.save_json).write_text(json.dumps(saved, indent=1))
             low, high = stats["ci_fraction"]
             extra = ""
             if args.calibration and overrides is not None:

@@ -8,7 +8,7 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 
 from simdist.modules import SimDistWorldModel
-from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
+from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig, colored_noise
 
 
 def _plan(planner, latent, **extra):
@@ -127,6 +127,8 @@ def test_accepts_tensordict_modules_and_unbatched_latents():
     (dict(temperature=0.0), "temperature"),
     (dict(action_low=1.0, action_high=-1.0), "action bounds inverted"),
     (dict(value_weight=-0.5), "value_weight must be >= 0"),
+    (dict(noise_beta=-1.0), "noise_beta must be >= 0"),
+    (dict(noise_beta=math.nan), "noise_beta must be a finite number"),
 ])
 def test_bad_configs_are_clear_errors(kwargs, message):
     with pytest.raises(ValueError, match=message):
@@ -268,3 +270,67 @@ def test_buffers_start_on_the_models_device():
     free = LatentMPPIPlanner(lambda z, a: z, lambda z, a: z.sum(-1, keepdim=True), None,
                              action_dim=2)
     assert free.action_low.device.type == "cpu"
+
+
+def test_white_noise_is_returned_unchanged():
+    white = torch.randn(3, 8, 2)
+    assert colored_noise(white, 0.0) is white
+
+
+@pytest.mark.parametrize("n", [5, 8, 20])
+def test_colored_noise_has_the_hand_computed_spectrum_and_unit_variance(n):
+    # A unit impulse at step 0 filtered by the colouring gives the filter's impulse response;
+    # its DFT must be the amplitude f^(-beta/2) (lowest frequency 1/n for f = 0), scaled so
+    # that the mean squared amplitude over the full spectrum is 1 (unit variance per step).
+    beta = 2.0
+    impulse = torch.zeros(n, 1, dtype=torch.float64)
+    impulse[0] = 1.0
+    response = colored_noise(impulse, beta, dim=0)[:, 0]
+    freqs = [max(min(k, n - k) / n, 1 / n) for k in range(n)]
+    amplitude = torch.tensor([f ** (-beta / 2) for f in freqs], dtype=torch.float64)
+    amplitude = amplitude / amplitude.pow(2).mean().sqrt()
+    torch.testing.assert_close(torch.fft.fft(response).real, amplitude)
+    torch.testing.assert_close(torch.fft.fft(response).imag, torch.zeros(n, dtype=torch.float64))
+    # Statistically: every step stays N(0, 1), neighbouring steps become correlated.
+    x = colored_noise(torch.randn(20000, n, 2, generator=torch.Generator().manual_seed(0)), beta)
+    torch.testing.assert_close(x.std(dim=(0, 2)), torch.ones(n), atol=0.03, rtol=0)
+    assert (x[:, 1:] * x[:, :-1]).mean() > 0.3
+
+
+def test_colored_noise_survives_a_very_large_beta():
+    x = colored_noise(torch.randn(4000, 20, 1, generator=torch.Generator().manual_seed(0)), 500.0)
+    assert torch.isfinite(x).all()
+    torch.testing.assert_close(x.std(), torch.tensor(1.0), atol=0.05, rtol=0)
+
+
+def test_planner_samples_colored_sequences():
+    # Zero reward: the final plan is the weighted mean of the elites, i.e. of the sampled
+    # noise; with beta = 2 its consecutive steps move together, with white noise they do not.
+    def plan(beta):
+        planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: torch.zeros_like(z[..., :1]),
+                                    None, 1, PlannerConfig(horizon=16, num_samples=8,
+                                                           num_elites=1, iterations=1,
+                                                           noise_beta=beta, init_std=0.5,
+                                                           max_std=0.5), seed=0)
+        return _plan(planner, torch.zeros(512, 1))["planner", "mean"][..., 0]
+    def lag1(x):
+        x = x - x.mean()
+        return float((x[:, 1:] * x[:, :-1]).mean() / x.pow(2).mean())
+    assert lag1(plan(2.0)) > 0.5 and abs(lag1(plan(0.0))) < 0.1
+
+
+@pytest.mark.parametrize("steps", [1, 3])
+def test_policy_noise_only_on_the_first_steps(steps):
+    # Every sample a proposal (policy_fraction rounds to all): with policy_noise_steps = k
+    # each elite is the prior's action + noise on steps < k and exactly the prior after.
+    cfg = PlannerConfig(horizon=6, num_samples=16, num_elites=4, iterations=1,
+                        policy_fraction=0.99, policy_noise=0.3, policy_noise_steps=steps)
+    prior = lambda z: torch.full((z.shape[0], 2), 0.2)  # noqa: E731
+    planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -a.pow(2).sum(-1, keepdim=True),
+                                None, 2, cfg, policy=prior, seed=0)
+    elites = _plan(planner, torch.zeros(3, 1))["planner", "elite_actions"]
+    assert elites.shape == (3, 4, 6, 2)
+    torch.testing.assert_close(elites[:, :, steps:], torch.full_like(elites[:, :, steps:], 0.2))
+    assert (elites[:, :, :steps] - 0.2).abs().min() > 0  # the first steps are perturbed
+    with pytest.raises(ValueError, match="policy_noise_steps must be >= 0"):
+        PlannerConfig(policy_noise_steps=-1)

@@ -185,11 +185,18 @@ def test_dataset_dither_reaches_the_perturbation_schedule():
     assert dataset_config(Config()).schedule.dither_std == 0.0  # the reference schedule
 
 
+def test_planner_flags_reach_the_planner_config():
+    from simdist.recipes.simdist_quadruped import Config
+    assert Config(planner_policy_noise_steps=1).planner().policy_noise_steps == 1
+    assert Config().planner().policy_noise_steps == 0  # noise on every step of the plan
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--episodes", "0"], "episodes: must be > 0"),
     (["--dataset-dither-std", "-0.5"], "dither_std must be finite and >= 0"),
     (["--budgets-min", "2", "1"], "budgets_min: must be positive and increasing"),
     (["--planner-elites", "100"], "num_elites (100) must be <= num_samples"),
+    (["--planner-policy-noise-steps", "-1"], "policy_noise_steps must be >= 0"),
     (["--model-size", "huge"], "model_size: unknown size 'huge'"),
     (["--target", "unseen_scenes"], "change only what a camera"),
     (["--slice-len", "2"], "needs model_horizon < slice_len"),

@@ -60,20 +60,30 @@ class PlannerConfig:
     # Weight of the terminal value gamma^H V(z_H) in a candidate's score (the reference:
     # 1). 0 ranks candidates by their predicted rewards alone.
     value_weight: float = 1.0
+    # Temporal colour of the sampling noise along the horizon (iCEM, Pinneri et al. 2020):
+    # its power spectrum falls as 1/f^noise_beta. 0: white noise, every step drawn on its
+    # own (the reference); 2: smooth, low-frequency sequences; large: nearly one offset
+    # held for the whole horizon. Each step's marginal stays N(0, 1) whatever the colour.
+    noise_beta: float = 0.0
+    # Steps at the start of the horizon on which the policy prior's proposals carry noise
+    # (0: every step). 1 makes the proposals differ only in the action executed now and
+    # follow the prior afterwards, so each proposal's score is the model's estimate of
+    # that first action under the prior, undiluted by noise on steps that are re-planned.
+    policy_noise_steps: int = 0
 
     def __post_init__(self):
         for name in ("horizon", "num_samples", "iterations", "num_elites",
-                     "latency_compensation"):
+                     "latency_compensation", "policy_noise_steps"):
             value = getattr(self, name)
             # bool is an int, and 2.5 would be truncated silently by the tensor shapes.
             if isinstance(value, bool) or not isinstance(value, numbers.Integral):
                 raise ValueError(f"{name} must be an integer, got {value!r}")
-            if value < (0 if name == "latency_compensation" else 1):
-                raise ValueError(f"{name} must be >= "
-                                 f"{0 if name == 'latency_compensation' else 1}, got {value}")
+            least = 0 if name in ("latency_compensation", "policy_noise_steps") else 1
+            if value < least:
+                raise ValueError(f"{name} must be >= {least}, got {value}")
         for name in ("temperature", "gamma", "init_std", "min_std", "max_std",
                      "policy_fraction", "policy_noise", "action_low", "action_high",
-                     "value_weight"):
+                     "value_weight", "noise_beta"):
             value = getattr(self, name)
             # NaN passes every "< 0" style check below, so test finiteness first.
             if not (isinstance(value, numbers.Real) and math.isfinite(value)):
@@ -94,6 +104,8 @@ class PlannerConfig:
             raise ValueError(f"action bounds inverted: {self.action_low} >= {self.action_high}")
         if self.value_weight < 0:
             raise ValueError(f"value_weight must be >= 0, got {self.value_weight}")
+        if self.noise_beta < 0:
+            raise ValueError(f"noise_beta must be >= 0, got {self.noise_beta}")
 
     @classmethod
     def reference(cls, **overrides) -> PlannerConfig:
@@ -104,6 +116,39 @@ class PlannerConfig:
     @property
     def num_policy(self) -> int:
         return int(round(self.policy_fraction * self.num_samples))
+
+
+def colored_noise(white: torch.Tensor, beta: float, dim: int = -2) -> torch.Tensor:
+    """Gives standard-normal ``white`` noise a ``1/f^beta`` power spectrum along ``dim``.
+
+    The white samples are filtered in the frequency domain (amplitude ``f^(-beta/2)``, the
+    zero frequency treated as the lowest one, ``1/n``, as in iCEM's colored noise) and
+    rescaled so that every step keeps unit variance: the noise is as large as before, only
+    correlated in time. ``beta = 0`` returns ``white`` unchanged.
+
+    Examples:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> x = colored_noise(torch.randn(4096, 20, 1, generator=g), beta=2.0)
+        >>> round(float(x.std()), 1), x.shape
+        (1.0, torch.Size([4096, 20, 1]))
+        >>> lag1 = (x[:, 1:] * x[:, :-1]).mean()
+        >>> bool(lag1 > 0.5)  # neighbouring steps now move together
+        True
+    """
+    if beta == 0:
+        return white
+    n = white.shape[dim]
+    freqs = torch.fft.rfftfreq(n, device=white.device, dtype=white.dtype).clamp_min(1.0 / n)
+    # Relative to the lowest frequency (amplitudes <= 1), so a large beta cannot overflow.
+    amplitude = (freqs / freqs[0]).pow(-beta / 2)
+    # Variance of each output step: the mean of the squared amplitude over the full
+    # (two-sided) spectrum of n frequencies.
+    full = torch.cat([amplitude, amplitude[1:n - len(amplitude) + 1].flip(0)])
+    scale = full.pow(2).mean().sqrt()
+    shape = [1] * white.dim()
+    shape[dim] = len(amplitude)
+    spectrum = torch.fft.rfft(white, dim=dim) * (amplitude / scale).reshape(shape)
+    return torch.fft.irfft(spectrum, n=n, dim=dim)
 
 
 def _as_function(module):
@@ -335,13 +380,17 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         with torch.no_grad():
             mean = self._initial_mean(latent, is_init)
             n_random = c.num_samples - (c.num_policy if self._policy is not None else 0)
-            sample_noise = torch.randn(c.iterations, B, n_random, c.horizon, self.action_dim,
-                                       generator=gen, device=latent.device, dtype=latent.dtype)
+            sample_noise = colored_noise(
+                torch.randn(c.iterations, B, n_random, c.horizon, self.action_dim,
+                            generator=gen, device=latent.device, dtype=latent.dtype),
+                c.noise_beta)
             policy_noise = None
             if self._policy is not None and c.num_policy:
-                policy_noise = torch.randn(B, c.num_policy, c.horizon, self.action_dim,
-                                           generator=gen, device=latent.device,
-                                           dtype=latent.dtype)
+                policy_noise = colored_noise(
+                    torch.randn(B, c.num_policy, c.horizon, self.action_dim, generator=gen,
+                                device=latent.device, dtype=latent.dtype), c.noise_beta)
+                if c.policy_noise_steps:
+                    policy_noise[:, :, c.policy_noise_steps:] = 0
             try:
                 mean, std, rewards, value, elites = self._plan_impl(latent, mean, sample_noise,
                                                                     policy_noise)

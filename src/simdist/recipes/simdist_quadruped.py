@@ -167,6 +167,9 @@ class Config:
     # variants"). The paper preset keeps the reference values.
     planner_policy_fraction: float = 0.9
     planner_policy_noise: float = 0.3  # latent MPPI: std of the noise on the prior's proposals
+    # latent MPPI: steps at the start of the plan on which the prior's proposals carry that
+    # noise (PlannerConfig.policy_noise_steps; 0: every step of the horizon).
+    planner_policy_noise_steps: int = 0
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
     # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
@@ -246,6 +249,7 @@ class Config:
                              iterations=self.planner_iterations, num_elites=self.planner_elites,
                              policy_fraction=self.planner_policy_fraction,
                              policy_noise=self.planner_policy_noise,
+                             policy_noise_steps=self.planner_policy_noise_steps,
                              latency_compensation=self.planner_latency_compensation)
 
 
