@@ -168,7 +168,9 @@ class Config:
     planner_policy_fraction: float = 0.9
     planner_policy_noise: float = 0.3  # latent MPPI: std of the noise on the prior's proposals
     # latent MPPI: steps at the start of the plan on which the prior's proposals carry that
-    # noise (PlannerConfig.policy_noise_steps; 0: every step of the horizon).
+    # noise (PlannerConfig.policy_noise_steps; 0: every step of the horizon). 1 measured
+    # (slippery_slope, 3 seeds, 8 min): 28% [21, 35] vs 31% [26, 37], paired -3 [-12, 5]
+    # (benchmarks/README.md, "Which candidates should the planner compare").
     planner_policy_noise_steps: int = 0
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
