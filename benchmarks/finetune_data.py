@@ -18,6 +18,9 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
         --noise 0.3 --episodes 96 --out /tmp/noisy
     python benchmarks/finetune_data.py finetune --run RUN --train /tmp/noisy --updates 4000 \\
         --probe /tmp/climbing --save /tmp/noisy.pt
+    # the planner after 2000, 8000 and 16000 updates of one run, per-episode fractions to JSON
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
+        RUN/stages/round_2/data --updates 16000 --eval-at 2000 8000 16000 --json ft.json
 """
 
 from __future__ import annotations
