@@ -94,8 +94,8 @@ def finetune(args) -> None:
     data = torch.cat([load_memmap(Path(p))[:, :].select(*recipe.TARGET_KEYS)
                       for p in args.train], 0)
     buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
-    eval_at = sorted(set(args.eval_at or [args.updates]))
-    if eval_at[-1] > args.updates or eval_at[0] < 0:
+    eval_at = set(args.eval_at or [args.updates])
+    if max(eval_at) > args.updates or min(eval_at) < 0:
         raise SystemExit(f"--eval-at must lie in [0, --updates={args.updates}], got {eval_at}")
     evaluations = {}
 
@@ -109,14 +109,14 @@ def finetune(args) -> None:
                              "fraction": [float(f) for f in stats["fraction"]]}
 
     start = time.perf_counter()
-    for i in range(args.updates + 1):
+    for i in range(args.updates):
         if i in eval_at:
             evaluate(i)
-        if i == args.updates:
-            break
         metrics = agent.finetune_update(buffer.sample().reshape(-1, cfg.slice_len))
         if i % 1000 == 0 or i == args.updates - 1:
             print(f"update {i}: consistency {metrics['loss_consistency']:.4f}", flush=True)
+    if args.updates in eval_at:
+        evaluate(args.updates)
     print(f"{args.updates} updates on {data.numel()} steps and {len(eval_at)} evaluations in "
           f"{time.perf_counter() - start:.0f} s")
     report("after")

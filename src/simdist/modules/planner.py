@@ -138,16 +138,15 @@ def colored_noise(white: torch.Tensor, beta: float, dim: int = -2) -> torch.Tens
     if beta == 0:
         return white
     n = white.shape[dim]
-    freqs = torch.fft.rfftfreq(n, device=white.device, dtype=white.dtype).clamp_min(1.0 / n)
-    # Relative to the lowest frequency (amplitudes <= 1), so a large beta cannot overflow.
-    amplitude = (freqs / freqs[0]).pow(-beta / 2)
-    # Variance of each output step: the mean of the squared amplitude over the full
-    # (two-sided) spectrum of n frequencies.
-    full = torch.cat([amplitude, amplitude[1:n - len(amplitude) + 1].flip(0)])
-    scale = full.pow(2).mean().sqrt()
+    # |f| over the full (two-sided) spectrum, in units of the lowest frequency 1/n, so the
+    # amplitudes are <= 1 and a large beta cannot overflow.
+    freqs = torch.fft.fftfreq(n, device=white.device, dtype=white.dtype).abs() * n
+    amplitude = freqs.clamp_min(1.0).pow(-beta / 2)
+    # Each output step's variance is the mean squared amplitude over the full spectrum.
+    amplitude = amplitude / amplitude.pow(2).mean().sqrt()
     shape = [1] * white.dim()
-    shape[dim] = len(amplitude)
-    spectrum = torch.fft.rfft(white, dim=dim) * (amplitude / scale).reshape(shape)
+    shape[dim] = n // 2 + 1  # rfft keeps the non-negative half
+    spectrum = torch.fft.rfft(white, dim=dim) * amplitude[: n // 2 + 1].reshape(shape)
     return torch.fft.irfft(spectrum, n=n, dim=dim)
 
 
