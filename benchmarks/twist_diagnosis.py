@@ -96,6 +96,8 @@ from simdist.modules import (DreamerWorldModel, PixelEncoder, RandomRotate,
                              RandomShift)
 from simdist.pipelines import (EpisodeReplay, control_env, evaluate_returns,
                                load_episodes, mean_metrics, train_resumable)
+from simdist.pipelines.locomotion import rollout
+from simdist.utils.memmap import load_memmap, save_memmap
 
 
 def teacher_stage(outputs: Path, task: str, seed: int) -> dict:
@@ -176,10 +178,27 @@ def distil(args, cfg, teacher_result: dict) -> None:
     episodes = recorded
     if args.train_camera:  # D's states re-rendered under the recipe's train_camera DR
         episodes = with_pixels(recorded, train_camera_renders(args, cfg, states, "D_all"))
+    if args.teacher_episodes:  # the final teacher's own episodes after D (training DR)
+        episodes = episodes + teacher_episodes(args, cfg, teacher, recorded[0])
     replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
                            args.slices or cfg.student_slices)
-    for episode in episodes:
-        replay.add(episode)
+    for episode in episodes[-args.recent_episodes if args.recent_episodes else 0:]:
+        if args.train_states == "all":
+            replay.add(episode)
+            continue
+        # only the runs of consecutive kept steps at least a slice long, each as an episode
+        states_here = episode["next", "state"]
+        keep = (balancing(states_here) if args.train_states == "balancing"
+                else states_here[:, 0].abs() < BALANCING_CART)
+        edges = torch.diff(torch.cat([torch.tensor([0]), keep.int(), torch.tensor([0])]))
+        for start, end in zip((edges == 1).nonzero().flatten().tolist(),
+                              (edges == -1).nonzero().flatten().tolist()):
+            if end - start >= cfg.student_slice_len:
+                replay.add(episode[start:end])
+    if not len(replay):
+        raise SystemExit(f"no run of --train-states {args.train_states} steps is a slice "
+                         f"({cfg.student_slice_len} steps) long: nothing to train on")
+    print(f"training slices from {replay.episodes} runs, {len(replay)} steps", flush=True)
     probe_replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len, 128)
     for episode in recorded:  # latent R^2 on the recorded images for every arm
         probe_replay.add(episode)
@@ -223,6 +242,33 @@ def distil(args, cfg, teacher_result: dict) -> None:
                           "train_s": round(seconds, 1),
                           "last": mean_metrics(history, 50) if history else None}),
               flush=True)
+
+
+def teacher_episodes(args, cfg, teacher, like) -> list:
+    """``--teacher-episodes`` episodes of the *final* teacher acting on state with its
+    collection noise, recorded like D (the keys of ``like``) under the training
+    randomisation, from ``cfg.camera_id``; cached in ``--work``/teacher_episodes (rendering
+    takes minutes). The states a student deploying this policy will meet, which D (mostly
+    the early, weaker teacher's experience) holds few of."""
+    folder = (args.work / "teacher_episodes" /
+              f"{args.task}_s{args.seed}_camera{cfg.camera_id}_{args.teacher_episodes}")
+    if not folder.exists():
+        start = time.perf_counter()
+        torch.manual_seed(args.seed + 20_000)
+        env = control_env(args.task, args.seed + 20_000, pixels=True,
+                          visual=recipe.training_visual(cfg), num_envs=args.teacher_episodes,
+                          max_episode_steps=cfg.episode_steps, primer=teacher.make_primer(),
+                          camera_id=cfg.camera_id)
+        data = rollout(env, teacher.policy(explore=True), cfg.episode_steps)
+        env.close()
+        keys = list(like.keys(True, True))
+        for i, episode in enumerate(data.unbind(0)):
+            save_memmap(episode.select(*keys), folder.with_name(folder.name + ".tmp") / f"{i:03d}")
+        folder.with_name(folder.name + ".tmp").rename(folder)  # complete or absent
+        print(f"recorded {args.teacher_episodes} episodes of the final teacher in "
+              f"{time.perf_counter() - start:.0f} s, return "
+              f"{data['next', 'reward'].sum(1).mean():.0f}", flush=True)
+    return [load_memmap(p).to_tensordict() for p in sorted(folder.iterdir())]
 
 
 #: ``--eval-scenes``: besides the recipe's held-out scenes (textures never trained on and
@@ -423,6 +469,12 @@ def probe(args, cfg, teacher_result: dict) -> None:
 
     order = torch.randperm(len(pixels))
     test, train = order[: len(order) // 6], order[len(order) // 6:]
+    if args.train_states == "balancing":  # learn only where a balancing policy looks
+        train = train[balancing(states[train])]
+    if args.train_states == "in_view":  # every pole angle, the cart in the camera's view
+        train = train[states[train, 0].abs() < BALANCING_CART]
+    if args.recent_episodes:  # learn only on the last episodes of D (the final teacher's)
+        train = train[train >= sum(lengths[:-args.recent_episodes])]
     cache = args.work / "probe_renders"
     cache.mkdir(parents=True, exist_ok=True)
     heldout = {}  # name -> the test states rendered under the evaluation's randomisation
@@ -576,6 +628,18 @@ def main():
                         help="a label for the log (pixels: also the checkpoint folder)")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--recent-episodes", type=int, default=0,
+                        help="probe/pixels: train only on the last N episodes of D (of D "
+                             "and the --teacher-episodes after it); 0: all of them")
+    parser.add_argument("--teacher-episodes", type=int, default=0,
+                        help="pixels: add this many episodes of the final teacher (on state, "
+                             "with its collection noise, training DR) after D; with "
+                             "--recent-episodes N <= this, train on them alone")
+    parser.add_argument("--train-states", default="all", choices=["all", "balancing", "in_view"],
+                        help="probe/pixels: train on all of D's training states or only the "
+                             "balancing ones (pole within 0.3 rad, cart in view) or those with "
+                             "the cart in view (any pole angle); pixels: runs of such steps at "
+                             "least a slice long; the test sets and latent R^2 slices stay")
     parser.add_argument("--frames", type=int, default=1, choices=[1, 2],
                         help="probe: 2 reads each image with the one before it (late fusion)")
     parser.add_argument("--eval-scenes", nargs="*", default=[], choices=sorted(EVAL_SCENES),
