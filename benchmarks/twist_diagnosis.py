@@ -82,6 +82,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import json
 import time
@@ -119,6 +120,53 @@ class SelectDims(torch.nn.Module):
         return x.index_select(-1, self.dims)
 
 
+class StateReadout(torch.nn.Module):
+    """A frozen image -> state regressor (a CNN and a linear head trained supervised on
+    standardised states) that returns the state dimensions ``dims`` in the state's units."""
+
+    def __init__(self, encoder: torch.nn.Module, head: torch.nn.Module, mean: torch.Tensor,
+                 std: torch.Tensor, dims: list[int]):
+        super().__init__()
+        self.encoder, self.head = encoder.eval(), head
+        self.register_buffer("mean", mean[dims].clone())
+        self.register_buffer("std", std[dims].clone())
+        self.register_buffer("dims", torch.tensor(dims))
+        self.requires_grad_(False)
+
+    def train(self, mode: bool = True):  # stays in evaluation mode: it is frozen
+        return super().train(False)
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        out = self.head(self.encoder(pixels)).index_select(-1, self.dims)
+        return out * self.std + self.mean
+
+
+def train_readout(args, cfg, episodes: list) -> StateReadout:
+    """The probe's CNN and head trained on the images and states of ``episodes``
+    (``--warm-updates`` updates of ``--batch`` images, ``--shift`` per image, Adam at
+    ``--lr``), then frozen to read the ``--positions`` dimensions."""
+    pixels = torch.cat([e["next", "pixels"] for e in episodes])
+    states = torch.cat([e["next", "state"] for e in episodes])
+    mean, std = states.mean(0), states.std(0).clamp_min(1e-3)
+    encoder = probe_encoder(args, cfg)
+    head = torch.nn.Linear(encoder.embed_dim, states.shape[-1])
+    optim = torch.optim.Adam([*encoder.parameters(), *head.parameters()], lr=args.lr or 1e-3)
+    shift = RandomShift(args.shift, "frame")
+    start = time.perf_counter()
+    for step in range(1, args.warm_updates + 1):
+        index = torch.randint(len(pixels), (args.batch,))
+        loss = (head(encoder(shift(pixels[index]))) - (states[index] - mean) / std).pow(2)
+        loss = loss.mean()
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+        if step % 300 == 0 or step == args.warm_updates:
+            print(json.dumps({"variant": "readout", "readout_updates": step,
+                              "loss": round(loss.item(), 3), "images": len(pixels),
+                              "seconds": round(time.perf_counter() - start, 1)}), flush=True)
+    return StateReadout(encoder, head, mean, std, args.positions)
+
+
 def copy_rssm(teacher, student) -> None:
     """The student RSSM's tensors that have the teacher's shapes start as the teacher's."""
     own = student.rssm.state_dict()
@@ -134,33 +182,39 @@ STATE_VARIANTS = ("state", "positions")
 
 def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
                  standardise_belief: bool = False, positions: list[int] | None = None,
-                 init_rssm: bool = False, action_weight: float = 0.0) -> TwistStudent:
+                 init_rssm: bool = False, action_weight: float = 0.0,
+                 readout: StateReadout | None = None) -> TwistStudent:
     overrides = {} if lr is None else {"lr": lr}
     if standardise_belief:
         overrides["standardise_belief"] = True
     if action_weight:
         overrides["action_weight"] = action_weight
-    if variant in STATE_VARIANTS:
+    if variant in STATE_VARIANTS or variant == "readout":
         state_dim, action_dim = recipe.state_dim(task)
         dims = list(range(state_dim)) if variant == "state" else positions
+        if variant == "readout":
+            dims = positions
         student = DreamerWorldModel.teacher(len(dims), action_dim, cfg.model_size)
         student.decoder = student.reward_head = None  # a student learns neither
         if variant == "positions":  # reads only these dimensions of the state
             student.encoder = torch.nn.Sequential(SelectDims(dims), student.encoder)
-        overrides["shift_pad"] = 0  # a state vector is not an image
+        if variant == "readout":  # reads them from one image through a frozen readout
+            student.encoder = torch.nn.Sequential(readout, student.encoder)
+        overrides["shift_pad"] = 0  # a state vector is not an image (nor a readout's)
         if init_rssm:
             copy_rssm(teacher, student)
         return TwistStudent(teacher, student, recipe.twist_config(cfg, overrides),
-                            pixels_key=("next", "state"))
+                            pixels_key=("next", "pixels" if readout else "state"))
     twist = recipe.new_student(cfg, task, teacher, overrides)
     if variant == "warm":  # encoder + head -> the teacher's embedding; the teacher's RSSM
         encoder = twist.student.encoder
         head = torch.nn.Sequential(torch.nn.Linear(encoder.embed_dim, 256), torch.nn.ELU(),
                                    torch.nn.Linear(256, teacher.world_model.rssm.embed_dim))
         twist.student.encoder = torch.nn.Sequential(encoder, head)
-        twist.student.rssm.load_state_dict(teacher.world_model.rssm.state_dict())
+        # the head emits the teacher's embedding, so the student's RSSM is the teacher's
+        twist.student.rssm = copy.deepcopy(teacher.world_model.rssm)
         twist.optim = torch.optim.Adam(twist.student.parameters(), lr=twist.config.lr)
-    if variant == "init" or init_rssm:
+    if variant == "init" or (init_rssm and variant != "warm"):
         copy_rssm(teacher, twist.student)
     return twist
 
@@ -168,9 +222,6 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
 def distil(args, cfg, teacher_result: dict) -> None:
     torch.manual_seed(args.seed)
     teacher = recipe.load_teacher(cfg, args.task, teacher_result)
-    twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
-                         args.standardise_belief, args.positions, args.init_rssm,
-                         args.action_weight)
     recorded = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
     states = torch.cat([e["next", "state"] for e in recorded])
     if args.render_camera is not None:  # D's states seen from another camera, same DR
@@ -182,9 +233,10 @@ def distil(args, cfg, teacher_result: dict) -> None:
         episodes = episodes + teacher_episodes(args, cfg, teacher, recorded[0])
     replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len,
                            args.slices or cfg.student_slices)
+    train_episodes = []  # what the student trains on (and a warm start's encoder)
     for episode in episodes[-args.recent_episodes if args.recent_episodes else 0:]:
         if args.train_states == "all":
-            replay.add(episode)
+            train_episodes.append(episode)
             continue
         # only the runs of consecutive kept steps at least a slice long, each as an episode
         states_here = episode["next", "state"]
@@ -194,11 +246,31 @@ def distil(args, cfg, teacher_result: dict) -> None:
         for start, end in zip((edges == 1).nonzero().flatten().tolist(),
                               (edges == -1).nonzero().flatten().tolist()):
             if end - start >= cfg.student_slice_len:
-                replay.add(episode[start:end])
+                train_episodes.append(episode[start:end])
+    for episode in train_episodes:
+        replay.add(episode)
     if not len(replay):
         raise SystemExit(f"no run of --train-states {args.train_states} steps is a slice "
                          f"({cfg.student_slice_len} steps) long: nothing to train on")
     print(f"training slices from {replay.episodes} runs, {len(replay)} steps", flush=True)
+    stage = args.work / (f"{args.variant}_lr{args.lr}" if args.name == "base"
+                         else f"{args.variant}_{args.name}")
+    readout = None
+    if args.variant == "readout":  # trained once, kept beside the student's checkpoint
+        path = stage / "readout.pt"
+        if path.exists():
+            n_state = recorded[0]["next", "state"].shape[-1]
+            encoder = probe_encoder(args, cfg)
+            readout = StateReadout(encoder, torch.nn.Linear(encoder.embed_dim, n_state),
+                                   torch.zeros(n_state), torch.ones(n_state), args.positions)
+            readout.load_state_dict(torch.load(path, weights_only=True))
+        else:
+            readout = train_readout(args, cfg, train_episodes)
+            stage.mkdir(parents=True, exist_ok=True)
+            torch.save(readout.state_dict(), path)
+    twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
+                         args.standardise_belief, args.positions, args.init_rssm,
+                         args.action_weight, readout)
     probe_replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len, 128)
     for episode in recorded:  # latent R^2 on the recorded images for every arm
         probe_replay.add(episode)
@@ -206,10 +278,8 @@ def distil(args, cfg, teacher_result: dict) -> None:
     torch.manual_seed(12345)  # the same 128 slices for every arm and budget
     probe_batch = probe_replay.sample()
     torch.set_rng_state(generator_state)
-    stage = args.work / (f"{args.variant}_lr{args.lr}" if args.name == "base"
-                         else f"{args.variant}_{args.name}")
     if args.variant == "warm" and not (stage / "student.pt").exists():
-        warm_start(args, twist, recorded)
+        warm_start(args, twist, train_episodes)
     for updates in args.updates:  # cumulative: resumes from the previous budget
         start = time.perf_counter()
         history = train_resumable(twist.update, replay.sample, updates, {"twist": twist},
@@ -314,10 +384,22 @@ def latent_r2(twist: TwistStudent, batch) -> dict:
         teacher, student = twist.distillation.filter_both(batch.clone())
         decode = twist.teacher.world_model.decode
         out = {}
-        for name, states in (("latent_r2", student), ("teacher_r2", teacher)):
-            error = (decode(DreamerWorldModel.features(states)) - state).pow(2)
+        for name, states in (("latent", student), ("teacher", teacher)):
+            decoded = decode(DreamerWorldModel.features(states))
+            error = (decoded - state).pow(2)
             r2 = 1 - error.flatten(0, 1).mean(0) / state.flatten(0, 1).var(0)
-            out[name] = [round(v, 2) for v in r2.tolist()]
+            out[f"{name}_r2"] = [round(v, 2) for v in r2.tolist()]
+            # how many steps behind the scene the latent is: per dimension, the lag k in
+            # 0..4 at which the decoded state at t best matches the true state at t - k
+            lagged = [1 - (decoded[:, k:] - state[:, :state.shape[1] - k]).pow(2)
+                      .flatten(0, 1).mean(0) / state.flatten(0, 1).var(0) for k in range(5)]
+            out[f"{name}_lag"] = torch.stack(lagged).argmax(0).tolist()
+            if state.shape[-1] == 5:  # cartpole: the error where a balancing policy looks
+                keep = balancing(state)
+                spread = state[keep].std(0)
+                out[f"{name}_balancing_rmse_x_std"] = [
+                    round(v, 2) for v in ((decoded - state)[keep].pow(2).mean(0).sqrt()
+                                          / spread).tolist()]
         # what the deployed policy does with it: the teacher's actor (its deterministic
         # action) on the student's latent against the same actor on the teacher's
         actor = twist.teacher.actor
@@ -418,6 +500,32 @@ def noisy(args, cfg, teacher_result: dict) -> None:
         encoder.forward = clean
 
 
+def delayed(args, cfg, teacher_result: dict) -> None:
+    """The Oracle reading the state ``k`` control steps late: what a student whose latent
+    lags the scene by ``k`` steps can at best keep of the Oracle's return."""
+    teacher = recipe.load_teacher(cfg, args.task, teacher_result)
+    encoder = teacher.world_model.encoder
+    clean = encoder.forward
+    try:
+        for delay in args.delays:
+            seen = []  # the states of the last delay + 1 steps (every world steps together)
+
+            def late(state, delay=delay, seen=seen):
+                seen.append(state)
+                del seen[:-delay - 1]
+                return clean(seen[0])  # the first steps read the first state
+
+            encoder.forward = late
+            result = evaluate_returns(args.task, teacher.policy(explore=False),
+                                      teacher.make_primer(), args.seed + 10_000,
+                                      args.episodes, cfg.eval_steps, False, None)
+            print(json.dumps({"variant": "delayed", "delay_steps": delay,
+                              "mean": round(result["mean"], 1),
+                              "std": round(result["std"], 1)}), flush=True)
+    finally:
+        encoder.forward = clean
+
+
 #: cartpole states a balancing policy visits: pole within this angle (rad) of upright ...
 BALANCING_ANGLE = 0.3
 #: ... and the cart within this distance (m) of the centre (the fixed camera's view)
@@ -475,6 +583,8 @@ def probe(args, cfg, teacher_result: dict) -> None:
         train = train[states[train, 0].abs() < BALANCING_CART]
     if args.recent_episodes:  # learn only on the last episodes of D (the final teacher's)
         train = train[train >= sum(lengths[:-args.recent_episodes])]
+    if not len(train):
+        raise SystemExit("no training image is left after --train-states/--recent-episodes")
     cache = args.work / "probe_renders"
     cache.mkdir(parents=True, exist_ok=True)
     heldout = {}  # name -> the test states rendered under the evaluation's randomisation
@@ -578,8 +688,8 @@ def probe(args, cfg, teacher_result: dict) -> None:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("variant", choices=["state", "positions", "pixels", "init", "warm",
-                                            "noisy", "probe"])
+    parser.add_argument("variant", choices=["state", "positions", "readout", "pixels", "init",
+                                            "warm", "noisy", "delayed", "probe"])
     parser.add_argument("--outputs", type=Path, default=Path("outputs/twist_dmc"))
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS))
     parser.add_argument("--task", default="cartpole-balance")
@@ -622,6 +732,8 @@ def main():
     parser.add_argument("--noise", default="0,0.1,0.3,0.5",
                         type=lambda s: [float(x) for x in s.split(",")],
                         help="noisy: noise levels, in units of each state dimension's std")
+    parser.add_argument("--delays", default="0,1,2,3", type=lambda s: [int(x) for x in s.split(",")],
+                        help="delayed: how many control steps late the Oracle reads the state")
     parser.add_argument("--warm-updates", type=int, default=1200,
                         help="warm: encoder-only updates before distillation")
     parser.add_argument("--name", default="base",
@@ -661,7 +773,7 @@ def main():
             parser.error("--render-camera applies to the probe and the pixel students")
         cfg = dataclasses.replace(cfg, camera_id=args.render_camera)
     teacher_result = teacher_stage(args.outputs, args.task, args.seed)
-    run = {"probe": probe, "noisy": noisy}.get(args.variant, distil)
+    run = {"probe": probe, "noisy": noisy, "delayed": delayed}.get(args.variant, distil)
     run(args, cfg, teacher_result)
 
 

@@ -98,6 +98,13 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                            ("probe", ["--frames", "2", "--shift", "2"]),
                            ("warm", ["--arch", "keypoints", "--warm-updates", "2"]),
                            ("positions", ["--slices", "3", "--init-rssm"]),
+                           # training data: balancing states only, the last episode of D
+                           ("probe", ["--train-states", "balancing", "--recent-episodes", "1"]),
+                           ("pixels", ["--train-states", "balancing", "--name", "bal"]),
+                           # a frozen image -> positions readout trained on the final
+                           # teacher's own episodes, read by a positions student
+                           ("readout", ["--teacher-episodes", "2", "--recent-episodes", "2",
+                                        "--warm-updates", "2", "--shift", "2", "--init-rssm"]),
                            # the same teacher and states through another camera
                            ("probe", ["--render-camera", "1", "--heldout-renders"]),
                            ("pixels", ["--render-camera", "1", "--name", "cam"])):
@@ -121,12 +128,31 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
             else:
                 assert len(line["latent_r2"]) == 5 and "rendered" not in diag.stdout
             continue
+        if "--train-states" in extra:  # runs of kept steps, each at least a slice long
+            if variant == "pixels":
+                assert "training slices from" in diag.stdout and len(line["latent_r2"]) == 5
+            else:  # the training images come from D's last episode alone
+                assert 0 < line["images_train"] <= recipe_cfg_episode_steps(tmp_path)
+            continue
         if variant == "pixels":
             assert "mean" in line and len(line["latent_r2"]) == len(line["teacher_r2"]) == 5
             assert -1 <= line["action_corr"] <= 1 and line["action_rmse"] >= 0
             assert set(line["scenes"]) == {"training"} and "mean" in line["scenes"]["training"]
             assert line["action_weight"] == 2 and line["last"]["loss_action"] >= 0
             assert (tmp_path / "diagnosis" / "pixels_h" / "student.pt").exists()
+            continue
+        if variant == "readout":
+            assert "recorded 2 episodes of the final teacher" in diag.stdout
+            assert "training slices from 2 runs" in diag.stdout
+            assert '"readout_updates": 2' in diag.stdout and len(line["latent_r2"]) == 5
+            # the readout is frozen: the trained student still holds its weights unchanged
+            stage = tmp_path / "diagnosis" / "readout_lrNone"
+            readout = torch.load(stage / "readout.pt", weights_only=True)
+            student = torch.load(stage / "student.pt", weights_only=True)["state"]["twist"]
+            weights = {k.removeprefix("encoder.0."): v
+                       for k, v in student["student"].items() if k.startswith("encoder.0.")}
+            assert readout.keys() == weights.keys()
+            assert all(torch.equal(readout[k], weights[k]) for k in readout)
             continue
         if variant == "positions":  # exact (x, cos, sin) only, the options recorded
             assert "mean" in line and line["slices"] == 3 and line["init_rssm"]
@@ -151,6 +177,16 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                                                 "pole angular velocity",
                                                 "pole angular velocity"]
     assert len({x["mean"] for x in lines if x["noise_x_std"] == 0}) == 1
+    noiseless = lines[0]["mean"]
+    # the Oracle reading the state late: delay 0 is the Oracle itself
+    diag = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), "delayed",
+         "--preset", "tiny", "--outputs", str(tmp_path), "--delays", "0,3", "--episodes", "1"],
+        capture_output=True, text=True, timeout=300)
+    assert diag.returncode == 0, diag.stderr
+    lines = [json.loads(x) for x in diag.stdout.splitlines() if x.startswith("{")]
+    assert [x["delay_steps"] for x in lines] == [0, 3]
+    assert lines[0]["mean"] == noiseless  # the same worlds and policy, the state on time
     # a student-specific actor by DAgger on the frozen student's latents: fitted on D,
     # then on D plus the student's own labelled episodes
     dagger = subprocess.run(
