@@ -24,6 +24,13 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   state it reads, ``--noise`` times each dimension's standard deviation in D (all
   dimensions, then the pole's sine alone, then the pole's angular velocity alone): how
   precise must a student's perception be to keep the Oracle's return?
+- ``readout``: a two-part student: the probe's CNN and a linear head trained supervised
+  (``--warm-updates`` updates of ``--batch`` images, ``--shift``, ``--lr``) to regress the
+  state from one image, then frozen, and a ``positions`` student RSSM that reads the
+  readout's ``--positions`` instead of the exact ones; prints the readout's error on
+  D's balancing states (D's images and the same states under the held-out scenes).
+- ``delayed``: no student: the Oracle reading the state ``--delays`` control steps late
+  (a student whose latent lags the scene keeps at most this).
 - ``probe``: the student's CNN trained *supervised* to regress the state from one
   randomised image (5/6 of D's images to train, 1/6 held out); prints R^2 per state
   dimension: can the encoder see what the teacher's latent needs? Options: the encoder
@@ -39,6 +46,15 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   state dimension on the *balancing* test states (pole within 0.3 rad of upright, cart in
   view; ``balancing_rmse_*`` next to their ``balancing_std``): most of D is a fallen pole
   or a cart out of view, so R^2 over all of D hides the precision a balancing policy needs.
+
+Which data the probe and the students train on: ``--train-states balancing`` keeps
+only D's balancing states (the pixel students: only runs of such steps at least a
+slice long, each replayed as an episode), ``--train-states in_view`` those with the cart
+in the camera's view, ``--recent-episodes N`` only the last N episodes, and
+``--teacher-episodes K`` adds K episodes of the *final* teacher acting on state (with its
+collection noise, under the training randomisation, recorded like D) after D: with
+``--recent-episodes K`` the student trains on them alone. The test sets and the latent
+R^2 slices stay D's.
 
 ``pixels`` prints, after each budget, the held-out return and the student's latent R^2
 (and, with ``--eval-scenes heldout_nocam training``, the return on held-out textures
@@ -77,6 +93,15 @@ Usage:
         --arch keypoints --episodes 10
     python benchmarks/twist_diagnosis.py pixels --updates 300 --episodes 10 \
         --train-camera | --standardise-belief | --action-weight 10 --name ARM
+    python benchmarks/twist_diagnosis.py delayed --delays 0,1,2,3,4 --episodes 10
+    python benchmarks/twist_diagnosis.py probe --updates 1500 --batch 128 --heldout-renders \
+        --norm layer --input-norm image --shift 4 --lr 1e-3 --depth 32 --train-states balancing
+    python benchmarks/twist_diagnosis.py pixels --updates 300,900 --lr 1e-3 --slices 16 \
+        --init-rssm --episodes 10 --teacher-episodes 16 --recent-episodes 16 --name final16
+    python benchmarks/twist_diagnosis.py readout --updates 300,900 --lr 1e-3 --slices 16 \
+        --init-rssm --episodes 10 --warm-updates 1500 --batch 128 --shift 4 --norm layer \
+        --input-norm image --depth 32 [--train-states balancing] [--teacher-episodes 16 \
+        --recent-episodes 16] --name ARM
 """
 
 from __future__ import annotations
@@ -165,6 +190,31 @@ def train_readout(args, cfg, episodes: list) -> StateReadout:
                               "loss": round(loss.item(), 3), "images": len(pixels),
                               "seconds": round(time.perf_counter() - start, 1)}), flush=True)
     return StateReadout(encoder, head, mean, std, args.positions)
+
+
+def readout_precision(args, cfg, readout: StateReadout, recorded: list) -> dict:
+    """The readout's RMSE per dimension, in units of the dimension's spread there, on D's
+    balancing states (up to 1000, cartpole): D's own images (training randomisation) and
+    the same states re-rendered under the evaluation's held-out scenes."""
+    states = torch.cat([e["next", "state"] for e in recorded])
+    pixels = torch.cat([e["next", "pixels"] for e in recorded])
+    index = balancing(states).nonzero().flatten()
+    index = index[torch.randperm(len(index), generator=torch.Generator().manual_seed(0))[:1000]]
+    if not len(index):
+        return {"variant": "readout", "readout_balancing_states": 0}
+    camera = "" if cfg.camera_id is None else f"_camera{cfg.camera_id}"
+    heldout = cached_renders(args, states[index], VisualRandomisation.heldout_evaluation(),
+                             cfg.camera_id, f"heldout_balancing{camera}", 60_000)
+    target = states[index][:, readout.dims]
+    spread = target.std(0).clamp_min(1e-6)
+    out = {"variant": "readout", "readout_balancing_states": len(index),
+           "readout_dims": readout.dims.tolist()}
+    with torch.no_grad():
+        for name, images in (("recorded", pixels[index]), ("heldout", heldout)):
+            error = torch.cat([readout(images[i:i + 250]) for i in range(0, len(images), 250)])
+            rmse = (error - target).pow(2).mean(0).sqrt() / spread
+            out[f"readout_rmse_x_std_{name}"] = [round(v, 3) for v in rmse.tolist()]
+    return out
 
 
 def copy_rssm(teacher, student) -> None:
@@ -268,6 +318,8 @@ def distil(args, cfg, teacher_result: dict) -> None:
             readout = train_readout(args, cfg, train_episodes)
             stage.mkdir(parents=True, exist_ok=True)
             torch.save(readout.state_dict(), path)
+        if args.task.startswith("cartpole"):
+            print(json.dumps(readout_precision(args, cfg, readout, recorded)), flush=True)
     twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
                          args.standardise_belief, args.positions, args.init_rssm,
                          args.action_weight, readout)
@@ -308,7 +360,8 @@ def distil(args, cfg, teacher_result: dict) -> None:
                           "lr": args.lr, "slices": args.slices or cfg.student_slices,
                           "init_rssm": args.init_rssm or args.variant == "init",
                           "action_weight": args.action_weight,
-                          "mean": result["mean"], "std": result["std"], **extra,
+                          "mean": result["mean"], "std": result["std"],
+                          "returns": [round(r, 1) for r in result["returns"]], **extra,
                           "train_s": round(seconds, 1),
                           "last": mean_metrics(history, 50) if history else None}),
               flush=True)
