@@ -217,6 +217,18 @@ def readout_precision(args, cfg, readout: StateReadout, recorded: list) -> dict:
     return out
 
 
+class SensorNoise(torch.nn.Module):
+    """Adds white Gaussian noise of ``std`` (the input's units) in training and acting
+    alike: a stand-in for a readout of that precision."""
+
+    def __init__(self, std: float):
+        super().__init__()
+        self.std = std
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.std * torch.randn_like(x)
+
+
 def copy_rssm(teacher, student) -> None:
     """The student RSSM's tensors that have the teacher's shapes start as the teacher's."""
     own = student.rssm.state_dict()
@@ -233,7 +245,7 @@ STATE_VARIANTS = ("state", "positions")
 def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
                  standardise_belief: bool = False, positions: list[int] | None = None,
                  init_rssm: bool = False, action_weight: float = 0.0,
-                 readout: StateReadout | None = None) -> TwistStudent:
+                 readout: StateReadout | None = None, noise: float = 0.0) -> TwistStudent:
     overrides = {} if lr is None else {"lr": lr}
     if standardise_belief:
         overrides["standardise_belief"] = True
@@ -247,7 +259,8 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
         student = DreamerWorldModel.teacher(len(dims), action_dim, cfg.model_size)
         student.decoder = student.reward_head = None  # a student learns neither
         if variant == "positions":  # reads only these dimensions of the state
-            student.encoder = torch.nn.Sequential(SelectDims(dims), student.encoder)
+            student.encoder = torch.nn.Sequential(SelectDims(dims), SensorNoise(noise),
+                                                  student.encoder)
         if variant == "readout":  # reads them from one image through a frozen readout
             student.encoder = torch.nn.Sequential(readout, student.encoder)
         overrides["shift_pad"] = 0  # a state vector is not an image (nor a readout's)
@@ -322,7 +335,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
             print(json.dumps(readout_precision(args, cfg, readout, recorded)), flush=True)
     twist = make_student(args.variant, cfg, args.task, teacher, args.lr,
                          args.standardise_belief, args.positions, args.init_rssm,
-                         args.action_weight, readout)
+                         args.action_weight, readout, args.positions_noise)
     probe_replay = EpisodeReplay(cfg.env_steps + cfg.episode_steps, cfg.student_slice_len, 128)
     for episode in recorded:  # latent R^2 on the recorded images for every arm
         probe_replay.add(episode)
@@ -359,7 +372,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
         print(json.dumps({"variant": args.variant, "name": args.name, "updates": updates,
                           "lr": args.lr, "slices": args.slices or cfg.student_slices,
                           "init_rssm": args.init_rssm or args.variant == "init",
-                          "action_weight": args.action_weight,
+                          "action_weight": args.action_weight, "positions_noise": args.positions_noise,
                           "mean": result["mean"], "std": result["std"],
                           "returns": [round(r, 1) for r in result["returns"]], **extra,
                           "train_s": round(seconds, 1),
@@ -759,6 +772,9 @@ def main():
                         type=lambda s: [int(x) for x in s.split(",")],
                         help="positions: the state dimensions the student reads (cartpole: "
                              "x, cos, sin)")
+    parser.add_argument("--positions-noise", type=float, default=0.0,
+                        help="positions: white Gaussian noise of this std (state units) on "
+                             "every dimension read, in training and evaluation")
     parser.add_argument("--episodes", type=int, default=6, help="held-out evaluation episodes")
     parser.add_argument("--batch", type=int, default=400, help="probe: images per update")
     parser.add_argument("--depth", type=int, default=None,
