@@ -98,6 +98,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                            ("probe", ["--frames", "2", "--shift", "2"]),
                            ("warm", ["--arch", "keypoints", "--warm-updates", "2"]),
                            ("positions", ["--slices", "3", "--init-rssm"]),
+                           ("positions", ["--positions-noise", "0.05", "--name", "noisy"]),
                            # training data: balancing states only, the last episode of D
                            ("probe", ["--train-states", "balancing", "--recent-episodes", "1"]),
                            ("pixels", ["--train-states", "balancing", "--name", "bal"]),
@@ -153,6 +154,9 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                        for k, v in student["student"].items() if k.startswith("encoder.0.")}
             assert readout.keys() == weights.keys()
             assert all(torch.equal(readout[k], weights[k]) for k in readout)
+            continue
+        if "--positions-noise" in extra:  # (x, cos, sin) read with white noise
+            assert line["positions_noise"] == 0.05 and "mean" in line
             continue
         if variant == "positions":  # exact (x, cos, sin) only, the options recorded
             assert "mean" in line and line["slices"] == 3 and line["init_rssm"]
