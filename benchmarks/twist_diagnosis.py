@@ -666,7 +666,9 @@ def probe(args, cfg, teacher_result: dict) -> None:
     if args.train_camera:  # the same training states, each with a camera-pose draw
         images = train_camera_renders(args, cfg, states[train], "probe_train")[None]
     if args.extra_renders:
-        path = cache / f"extra{args.extra_renders}{camera_tag}_s{args.seed}.pt"
+        selection = ("" if args.train_states == "all" else f"_{args.train_states}") + (
+            f"_last{args.recent_episodes}" if args.recent_episodes else "")
+        path = cache / f"extra{args.extra_renders}{selection}{camera_tag}_s{args.seed}.pt"
         if not path.exists():
             torch.save(render_states(args.task, states[train], VisualRandomisation.training(),
                                      args.seed + 30_000, args.extra_renders,
