@@ -171,24 +171,14 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
         if "--heldout-renders" in extra:
             assert len(line["r2_heldout"]) == 5 and line["images_train"] % 2 == 0
     # the noisy-Oracle variant: without noise every group is the same rollout
-    diag = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), "noisy",
-         "--preset", "tiny", "--outputs", str(tmp_path), "--noise", "0,0.5", "--episodes", "1"],
-        capture_output=True, text=True, timeout=300)
-    assert diag.returncode == 0, diag.stderr
-    lines = [json.loads(x) for x in diag.stdout.splitlines() if x.startswith("{")]
+    lines = _oracle_diagnosis(tmp_path, "noisy", "--noise", "0,0.5")
     assert [x["dimensions"] for x in lines] == ["all", "all", "sin(pole)", "sin(pole)",
                                                 "pole angular velocity",
                                                 "pole angular velocity"]
     assert len({x["mean"] for x in lines if x["noise_x_std"] == 0}) == 1
     noiseless = lines[0]["mean"]
     # the Oracle reading the state late: delay 0 is the Oracle itself
-    diag = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), "delayed",
-         "--preset", "tiny", "--outputs", str(tmp_path), "--delays", "0,3", "--episodes", "1"],
-        capture_output=True, text=True, timeout=300)
-    assert diag.returncode == 0, diag.stderr
-    lines = [json.loads(x) for x in diag.stdout.splitlines() if x.startswith("{")]
+    lines = _oracle_diagnosis(tmp_path, "delayed", "--delays", "0,3")
     assert [x["delay_steps"] for x in lines] == [0, 3]
     assert lines[0]["mean"] == noiseless  # the same worlds and policy, the state on time
     # a student-specific actor by DAgger on the frozen student's latents: fitted on D,
@@ -206,6 +196,16 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert all(x["mse"] >= 0 and x["mse_teacher_actor"] > 0 for x in lines[1:])
     # the run's own settings: tiny episodes (the default preset's are 500 steps)
     assert lines[2]["steps"] - lines[1]["steps"] == 2 * recipe_cfg_episode_steps(tmp_path)
+
+
+def _oracle_diagnosis(outputs, variant: str, *flags: str) -> list[dict]:
+    """The JSON lines of a student-free twist_diagnosis variant on one tiny episode."""
+    diag = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
+         "--preset", "tiny", "--outputs", str(outputs), *flags, "--episodes", "1"],
+        capture_output=True, text=True, timeout=300)
+    assert diag.returncode == 0, diag.stderr
+    return [json.loads(x) for x in diag.stdout.splitlines() if x.startswith("{")]
 
 
 def recipe_cfg_episode_steps(outputs) -> int:
