@@ -172,6 +172,15 @@ def train_readout(args, cfg, episodes: list) -> StateReadout:
     ``--lr``), then frozen to read the ``--positions`` dimensions."""
     pixels = torch.cat([e["next", "pixels"] for e in episodes])
     states = torch.cat([e["next", "state"] for e in episodes])
+    if args.extra_renders:  # each training state rendered K more times, other draws
+        path = args.work / "probe_renders" / f"readout_extra{args.extra_renders}_{args.name}.pt"
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            torch.save(render_states(args.task, states, recipe.training_visual(cfg),
+                                     args.seed + 70_000, args.extra_renders,
+                                     camera_id=cfg.camera_id).flatten(0, 1), path)
+        pixels = torch.cat([pixels, torch.load(path, weights_only=True)])
+        states = states.repeat(1 + args.extra_renders, 1)
     mean, std = states.mean(0), states.std(0).clamp_min(1e-3)
     encoder = probe_encoder(args, cfg)
     head = torch.nn.Linear(encoder.embed_dim, states.shape[-1])
@@ -787,7 +796,7 @@ def main():
     parser.add_argument("--rotate", type=float, default=0.0,
                         help="probe: random in-plane rotation, degrees")
     parser.add_argument("--extra-renders", type=int, default=0,
-                        help="probe: extra training renders of D's states")
+                        help="probe/readout: extra training renders of the training states")
     parser.add_argument("--heldout-renders", action="store_true",
                         help="probe: also test on the test states under held-out scenes")
     parser.add_argument("--train-camera", action="store_true",

@@ -105,7 +105,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                            # a frozen image -> positions readout trained on the final
                            # teacher's own episodes, read by a positions student
                            ("readout", ["--teacher-episodes", "2", "--recent-episodes", "2",
-                                        "--warm-updates", "2", "--shift", "2", "--init-rssm"]),
+                                        "--warm-updates", "2", "--shift", "2", "--init-rssm",
+                                        "--extra-renders", "1"]),
                            # the same teacher and states through another camera
                            ("probe", ["--render-camera", "1", "--heldout-renders"]),
                            ("pixels", ["--render-camera", "1", "--name", "cam"])):
@@ -146,6 +147,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
             assert "recorded 2 episodes of the final teacher" in diag.stdout
             assert "training slices from 2 runs" in diag.stdout
             assert '"readout_updates": 2' in diag.stdout and len(line["latent_r2"]) == 5
+            # the training states rendered once more: twice the training images
+            assert '"images": 80,' in diag.stdout  # 2 final-teacher episodes of 20 steps
             # the readout is frozen: the trained student still holds its weights unchanged
             stage = tmp_path / "diagnosis" / "readout_lrNone"
             readout = torch.load(stage / "readout.pt", weights_only=True)
