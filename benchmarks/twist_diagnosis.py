@@ -27,7 +27,8 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
 - ``readout``: a two-part student: the probe's CNN and a linear head trained supervised
   (``--warm-updates`` updates of ``--batch`` images, ``--shift``, ``--lr``) to regress the
   state from one image, then frozen, and a ``positions`` student RSSM that reads the
-  readout's ``--positions`` instead of the exact ones; prints the readout's error on
+  readout's ``--positions`` instead of the exact ones (``--extra-renders K``: the readout
+  also sees each training state under K more draws); prints the readout's error on
   D's balancing states (D's images and the same states under the held-out scenes).
 - ``delayed``: no student: the Oracle reading the state ``--delays`` control steps late
   (a student whose latent lags the scene keeps at most this).
