@@ -29,3 +29,50 @@ def test_grouped_summary_rejects_empty_groups_and_non_finite_values():
         summarise_groups([[0.1], []])
     with pytest.raises(ValueError, match="finite"):
         summarise_groups([[0.1, float("nan")]])
+
+
+def test_the_interval_over_seeds_counts_the_spread_between_seeds():
+    from simdist.pipelines.statistics import interval_over_seeds
+    rng = np.random.default_rng(1)
+    # Three seeds whose means differ far more than their episodes' noise can explain: the
+    # stratified interval only measures the episodes, the one over seeds includes the gap.
+    groups = [rng.normal(m, 0.05, 32) for m in (-0.1, 0.1, 0.4)]
+    s = summarise_groups(groups)
+    assert s["ci_seeds_low"] < s["ci_low"] and s["ci_high"] < s["ci_seeds_high"]
+    assert s["ci_seeds_low"] <= s["mean"] <= s["ci_seeds_high"]
+    assert interval_over_seeds(groups) == (s["ci_seeds_low"], s["ci_seeds_high"])  # seeded
+
+    # Many seeds of equal size: a bootstrap of the seed means, whose standard error is the
+    # seeds' population std / sqrt(k) (constant episodes: nothing else varies).
+    means = rng.normal(0.3, 0.2, 200)
+    low, high = interval_over_seeds([np.full(8, m) for m in means], resamples=4000)
+    assert high - low == pytest.approx(2 * 1.96 * means.std() / np.sqrt(means.size), rel=0.1)
+
+    # Seeds that are draws of one distribution: the episodes' noise counted once, so close
+    # to the i.i.d. interval of the pool (a two-level resampling would be ~sqrt(2) wider).
+    same = [rng.normal(0.0, 1.0, 64) for _ in range(20)]
+    low, high = interval_over_seeds(same, resamples=4000)
+    iid = summarise(np.concatenate(same))
+    assert high - low == pytest.approx(iid["ci_high"] - iid["ci_low"], rel=0.2)
+
+
+def test_the_interval_over_seeds_refuses_what_it_cannot_resample():
+    from simdist.pipelines.statistics import interval_over_seeds
+    with pytest.raises(ValueError, match="two non-empty"):
+        interval_over_seeds([[0.1, 0.2]])
+    with pytest.raises(ValueError, match="finite"):
+        interval_over_seeds([[0.1, 0.2], [float("inf"), 0.3]])
+    assert "ci_seeds_low" not in summarise_groups([[0.1, 0.2, 0.3]])  # one seed: none
+
+
+def test_the_results_table_shows_the_interval_over_seeds_when_seeds_were_pooled():
+    from simdist.pipelines.report import aggregate_seeds, format_table
+    point = lambda f: {"fraction": f, "progress_m": f, "return": 1.0}
+    runs = [{"minutes": [0.0], "m": [point([0.1, 0.2, 0.3])]},
+            {"minutes": [0.0], "m": [point([0.6, 0.7, 0.8])]}]
+    merged = aggregate_seeds(runs)
+    low, high = merged["m"][0]["ci_fraction_seeds"]
+    table = format_table(merged, "ice")
+    assert "CI over seeds" in table and f"[{100 * low:4.0f}, {100 * high:4.0f}]%" in table
+    one_seed = aggregate_seeds(runs[:1])
+    assert "CI over seeds" not in format_table(one_seed, "ice")  # one seed: no such column

@@ -270,6 +270,9 @@ def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_e
             assert point["fraction"] == fractions[0] + fractions[1]  # pooled episodes
             assert point["seed_means"] == pytest.approx([sum(f) / len(f) for f in fractions])
             assert point["ci_fraction"][0] <= point["mean_fraction"] <= point["ci_fraction"][1]
+            low, high = point["ci_fraction_seeds"]  # the interval that resamples the seeds
+            assert low <= point["mean_fraction"] <= high
+    assert "CI over seeds" in proc.stdout
 
 
 @pytest.fixture(scope="module")

@@ -39,12 +39,21 @@ def format_table(results: dict, target: str) -> str:
             for minutes, r in zip(results["minutes"], results[name])]
     if "planner_in_sim" in results:
         rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
+    # several seeds: the interval that also resamples the seeds (interval_over_seeds)
+    over_seeds = any("ci_fraction_seeds" in r for _, _, r in rows)
+    if over_seeds:
+        lines[0] += "; the last column also resamples the seeds"
+        lines[1] += f" {'CI over seeds':>15s}"
     for name, minutes, r in rows:
         when = f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
         iqm = r.get("iqm_fraction", r["mean_fraction"])
         low, high = r.get("ci_fraction", [r["mean_fraction"]] * 2)
-        lines.append(f"{name:33s} {when} {r['mean_m']:13.2f} {100 * r['mean_fraction']:5.0f}% "
-                     f"{100 * iqm:5.0f}% [{100 * low:4.0f}, {100 * high:4.0f}]%")
+        line = (f"{name:33s} {when} {r['mean_m']:13.2f} {100 * r['mean_fraction']:5.0f}% "
+                f"{100 * iqm:5.0f}% [{100 * low:4.0f}, {100 * high:4.0f}]%")
+        if over_seeds:
+            low, high = r.get("ci_fraction_seeds", [r["mean_fraction"]] * 2)
+            line += f"   [{100 * low:4.0f}, {100 * high:4.0f}]%"
+        lines.append(line)
     return "\n".join(lines)
 
 
@@ -62,7 +71,9 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
     minutes = results["minutes"]
     for name in _methods(results):
         mean = [100 * r["mean_fraction"] for r in results[name]]
-        ci = [r.get("ci_fraction", [r["mean_fraction"]] * 2) for r in results[name]]
+        # the band over seeds and episodes when several seeds were pooled
+        ci = [r.get("ci_fraction_seeds", r.get("ci_fraction", [r["mean_fraction"]] * 2))
+              for r in results[name]]
         style = "--" if name.startswith("expert") else "-o"
         line, = ax.plot(minutes, mean, style, label=name)
         ax.fill_between(minutes, [100 * c[0] for c in ci], [100 * c[1] for c in ci],
@@ -72,7 +83,9 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
                    ls=":", label="pretrained planner in sim")
     ax.axhline(100, color="k", lw=0.5)
     ax.set_xlabel(f"minutes of 50 Hz data collected in {target}")
-    ax.set_ylabel("forward progress, % of commanded\n(mean, band: bootstrap 95% CI)")
+    pooled = any("ci_fraction_seeds" in r for name in _methods(results) for r in results[name])
+    ax.set_ylabel("forward progress, % of commanded\n(mean, band: bootstrap 95% CI"
+                  + (" over seeds and episodes)" if pooled else ")"))
     ax.set_title(f"SimDist transfer to {target}")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
@@ -89,6 +102,8 @@ def _aggregate_point(points: list[dict]) -> dict:
             "mean_m": float(metres.mean()), "std_m": float(metres.std()),
             "mean_fraction": s["mean"], "std_fraction": s["std"], "iqm_fraction": s["iqm"],
             "ci_fraction": [s["ci_low"], s["ci_high"]], "seed_means": s["group_means"],
+            **({"ci_fraction_seeds": [s["ci_seeds_low"], s["ci_seeds_high"]]}
+               if "ci_seeds_low" in s else {}),
             "std_over_seeds": s["std_over_seeds"],
             "return": float(np.mean([p["return"] for p in points]))}
 
