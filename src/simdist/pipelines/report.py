@@ -85,7 +85,7 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
     ax.set_xlabel(f"minutes of 50 Hz data collected in {target}")
     pooled = any("ci_fraction_seeds" in r for name in _methods(results) for r in results[name])
     ax.set_ylabel("forward progress, % of commanded\n(mean, band: bootstrap 95% CI"
-                  + (" over seeds and episodes)" if pooled else ")"))
+                  + (" over seeds)" if pooled else ")"))
     ax.set_title(f"SimDist transfer to {target}")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
