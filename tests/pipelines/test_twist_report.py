@@ -27,6 +27,10 @@ def test_twist_summary_matches_scipy_and_stratifies_by_seed():
     assert (s["normalised_ci_high"] - s["normalised_ci_low"]) < \
         (unstratified["normalised_ci_high"] - unstratified["normalised_ci_low"])
     assert "IQM" in format_table(results) and "[" in format_table(results)
+    # and the interval over seeds (seeds resampled) spans the seeds' gap the other omits
+    low, high = s["normalised_ci_seeds"]
+    assert low < s["normalised_ci_low"] and s["normalised_ci_high"] < high
+    assert "normalised_ci_seeds" not in unstratified  # one seed: nothing to resample
 
 
 def test_twist_summary_needs_the_oracle():

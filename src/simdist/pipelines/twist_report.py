@@ -51,6 +51,8 @@ def summarise(results: dict) -> dict:
                 entry.update({"normalised": norm["mean"], "normalised_iqm": norm["iqm"],
                               "normalised_ci_low": norm["ci_low"],
                               "normalised_ci_high": norm["ci_high"]})
+                if "ci_seeds_low" in norm:  # several seeds: the interval resampling them
+                    entry["normalised_ci_seeds"] = [norm["ci_seeds_low"], norm["ci_seeds_high"]]
             else:
                 entry.update(dict.fromkeys(("normalised", "normalised_iqm",
                                             "normalised_ci_low", "normalised_ci_high"),
