@@ -19,6 +19,13 @@ def _methods(results: dict) -> list[str]:
     return [k for k in results if k not in ("minutes", "planner_in_sim")]
 
 
+def _pooled_over_seeds(results: dict) -> bool:
+    """Whether the points carry the interval that resamples seeds (several seeds pooled)."""
+    points = [r for name in _methods(results) for r in results[name]]
+    points += [results["planner_in_sim"]] if "planner_in_sim" in results else []
+    return any("ci_fraction_seeds" in r for r in points)
+
+
 def format_table(results: dict, target: str) -> str:
     """A plain-text table: one row per method and data budget.
 
@@ -40,7 +47,7 @@ def format_table(results: dict, target: str) -> str:
     if "planner_in_sim" in results:
         rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
     # several seeds: the interval that also resamples the seeds (interval_over_seeds)
-    over_seeds = any("ci_fraction_seeds" in r for _, _, r in rows)
+    over_seeds = _pooled_over_seeds(results)
     if over_seeds:
         lines[0] += "; the last column also resamples the seeds"
         lines[1] += f" {'CI over seeds':>15s}"
@@ -83,9 +90,8 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
                    ls=":", label="pretrained planner in sim")
     ax.axhline(100, color="k", lw=0.5)
     ax.set_xlabel(f"minutes of 50 Hz data collected in {target}")
-    pooled = any("ci_fraction_seeds" in r for name in _methods(results) for r in results[name])
     ax.set_ylabel("forward progress, % of commanded\n(mean, band: bootstrap 95% CI"
-                  + (" over seeds)" if pooled else ")"))
+                  + (" over seeds)" if _pooled_over_seeds(results) else ")"))
     ax.set_title(f"SimDist transfer to {target}")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()

@@ -90,7 +90,7 @@ def summarise_groups(groups, confidence: float = 0.95, resamples: int = 2000,
 
 
 def interval_over_seeds(groups, confidence: float = 0.95, resamples: int = 2000,
-                          seed: int = 0) -> tuple[float, float]:
+                        seed: int = 0) -> tuple[float, float]:
     """Percentile bootstrap interval of the pooled mean when the seeds are the sample.
 
     Each resample draws as many seeds as there are, with replacement, and pools their
