@@ -82,7 +82,7 @@ def main():
     parser.add_argument("--configs", nargs="+", default=None,
                         help="only these configs (default: all)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    parser.add_argument("--size", default="small", help="world-model size (tiny, small, paper)")
+    parser.add_argument("--size", default="small", help="world-model size (tiny, small, wide, paper)")
     args = parser.parse_args()
     torch.manual_seed(0)
     device = torch.device(args.device)
