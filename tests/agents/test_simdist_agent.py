@@ -13,10 +13,10 @@ from simdist.modules.planner import PlannerConfig
 from tests.synthetic import linear_system_batch
 
 
-def _agent(obs_dim=89, action_dim=12, lr=2e-4):
+def _agent(obs_dim=89, action_dim=12, lr=2e-4, mixed_precision="none"):
     torch.manual_seed(0)
     return SimDistAgent(SimDistWorldModel.build(obs_dim, action_dim, size="tiny", history=3),
-                        SimDistConfig(horizon=3, lr=lr))
+                        SimDistConfig(horizon=3, lr=lr, mixed_precision=mixed_precision))
 
 
 def test_planning_policy_runs_in_env_with_history_reset_per_episode():
@@ -40,8 +40,9 @@ def test_planning_policy_runs_in_env_with_history_reset_per_episode():
     torch.testing.assert_close(history[:, 6, :-1], history[:, 5, 1:])  # shifts by one
 
 
-def test_finetune_update_moves_only_dynamics_and_whole_ablation_moves_encoder():
-    agent = _agent(obs_dim=4, action_dim=2)
+@pytest.mark.parametrize("mixed_precision", ["none", "bfloat16"])
+def test_finetune_update_moves_only_dynamics_and_whole_ablation_moves_encoder(mixed_precision):
+    agent = _agent(obs_dim=4, action_dim=2, mixed_precision=mixed_precision)
     batch = linear_system_batch(batch=8, time=8, obs_dim=4)
     before = copy.deepcopy(agent.world_model.state_dict())
     for _ in range(3):
@@ -63,6 +64,34 @@ def test_pretraining_updates_reduce_the_loss():
     for _ in range(100):
         last = agent.pretrain_update(batch.clone())
     assert last["loss_reward"] < first["loss_reward"] / 2
+
+
+def test_bfloat16_updates_keep_float32_weights_and_latents_and_match_float32_losses():
+    batch = linear_system_batch(batch=16, time=10, obs_dim=4)
+    full, mixed = _agent(4, 2), _agent(4, 2, mixed_precision="bfloat16")
+    mixed.world_model.load_state_dict(full.world_model.state_dict())
+    with mixed._autocast():
+        latents = mixed.world_model.encode_sequence(batch["observation"], batch["is_init"][..., 0])
+        rolled = mixed.world_model.rollout(latents[:, 0], batch["action"][:, :3])
+    assert latents.dtype == rolled.dtype == torch.float32  # SimNorm runs in float32
+    first_full, first_mixed = full.pretrain_update(batch.clone()), mixed.pretrain_update(batch.clone())
+    for key in ("loss_consistency", "loss_reward", "loss_value", "loss_bc"):
+        # bfloat16 keeps ~3 significant digits: the same loss to within a few percent
+        assert first_mixed[key] == pytest.approx(first_full[key], rel=0.05, abs=1e-4), key
+    assert all(p.dtype == torch.float32 for p in mixed.world_model.parameters())
+    assert all(s.dtype == torch.float32 for state in mixed.pretrain_optim.state.values()
+               for s in state.values() if s.is_floating_point() and s.dim() > 0)
+
+
+def test_bfloat16_pretraining_reduces_the_loss_and_unknown_precisions_are_refused():
+    agent = _agent(obs_dim=4, action_dim=2, lr=3e-3, mixed_precision="bfloat16")
+    batch = linear_system_batch(batch=16, time=10, obs_dim=4)
+    first = agent.pretrain_update(batch.clone())
+    for _ in range(100):
+        last = agent.pretrain_update(batch.clone())
+    assert last["loss_reward"] < first["loss_reward"] / 2
+    with pytest.raises(ValueError, match="unknown mixed_precision 'float8'"):
+        _agent(4, 2, mixed_precision="float8")
 
 
 def test_latency_compensation_plans_from_the_latent_rolled_through_actions_in_flight():

@@ -66,6 +66,14 @@ class SimDistConfig:
     # ones live in ``pretrain_loss.extra_dynamics``; :meth:`SimDistAgent.members` gives
     # one world model per dynamics, sharing everything else.
     dynamics_members: int = 1
+    # "bfloat16": pretraining and finetuning updates run their forward pass under
+    # ``torch.autocast`` (matmuls in bfloat16, weights, optimiser state and latents in
+    # float32; DreamerV3 trains this way). ~4x faster MLPs on CPUs with AVX512-BF16.
+    # Planning is unaffected (float32). "none": float32 throughout.
+    mixed_precision: str = "none"
+
+
+MIXED_PRECISION = {"none": None, "bfloat16": torch.bfloat16}
 
 
 # the actions a latency-compensating policy has sent that the robot may not apply yet
@@ -166,6 +174,9 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self.planner_config = planner_config
         if config.dynamics_members < 1:
             raise ValueError(f"dynamics_members must be >= 1, got {config.dynamics_members}")
+        if config.mixed_precision not in MIXED_PRECISION:
+            raise ValueError(f"unknown mixed_precision {config.mixed_precision!r}; valid: "
+                             f"{', '.join(MIXED_PRECISION)}")
         extra = [world_model.fresh_dynamics() for _ in range(config.dynamics_members - 1)]
         self.pretrain_loss = SimDistPretrainLoss(world_model, horizon=config.horizon,
                                                  bc_weight=config.bc_weight,
@@ -211,9 +222,15 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         torch.nn.utils.clip_grad_norm_(params, self.config.grad_clip)
         optim.step()
 
+    def _autocast(self):
+        """The forward pass's precision context (``config.mixed_precision``)."""
+        dtype = MIXED_PRECISION[self.config.mixed_precision]
+        return torch.autocast(self.device.type, dtype=dtype, enabled=dtype is not None)
+
     def pretrain_update(self, batch: TensorDictBase) -> dict[str, float]:
         batch = batch.to(self.device)
-        out = self.pretrain_loss(batch)
+        with self._autocast():
+            out = self.pretrain_loss(batch)
         self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.pretrain_optim)
         return {k: v.item() for k, v in out.items()}
 
@@ -221,8 +238,9 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         """Every member's finetuning loss on ``batch``, their mean applied; the metrics
         are the members' means."""
         batch = batch.to(self.device)
-        outs = [loss.consistency_all_parts(batch) if whole_model else loss(batch)
-                for loss in self.finetune_losses]
+        with self._autocast():
+            outs = [loss.consistency_all_parts(batch) if whole_model else loss(batch)
+                    for loss in self.finetune_losses]
         total = sum(v for out in outs for k, v in out.items() if k.startswith("loss_"))
         self._apply(total / len(outs), optim)
         return {k: sum(out[k].item() for out in outs) / len(outs) for k in outs[0].keys()}

@@ -256,6 +256,12 @@ class HistoryEncoder(nn.Module):
 
 
 def simnorm(z: torch.Tensor, groups: int) -> torch.Tensor:
-    """TD-MPC2's simplicial normalisation: softmax within each of ``groups`` chunks."""
+    """TD-MPC2's simplicial normalisation: softmax within each of ``groups`` chunks.
+
+    Computed in at least float32, so that under bfloat16 autocast the latent (what the
+    consistency loss and the planner compare) keeps full precision; only the MLPs' matmuls
+    run in the lower precision.
+    """
     shape = z.shape
+    z = z.to(torch.promote_types(z.dtype, torch.float32))
     return torch.softmax(z.reshape(*shape[:-1], groups, -1), -1).reshape(shape)

@@ -38,6 +38,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from simdist.agents import SimDistAgent, SimDistConfig
+from simdist.agents.simdist import MIXED_PRECISION
 from simdist.data import (DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.data.dataset import read_dataset_meta
@@ -111,6 +112,10 @@ class Config:
     # observation steps the encoder reads (0: the size's own, 4 for "small"; the SimDist
     # reference: 25)
     model_history: int = 0
+    # precision of the world model's training updates: "none" (float32) or "bfloat16"
+    # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
+    # Planning stays float32.
+    mixed_precision: str = "none"
     # steps of latent rollout in the pretraining and finetuning losses. Shorter than the
     # planner's horizon on purpose: training over the planner's 10 steps ranked candidates
     # worse (Spearman .07 vs .23) and planned the same (slippery_slope 8 min: +17% vs +18%,
@@ -210,6 +215,8 @@ class Config:
                 check_builds(name, get_target, target)
         check(self.model_size in SIMDIST_SIZES, "model_size",
               f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
+        check(self.mixed_precision in MIXED_PRECISION, "mixed_precision",
+              f"unknown precision {self.mixed_precision!r}; valid: {sorted(MIXED_PRECISION)}")
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
                        "dataset_shard_episodes", "dataset_workers", "model_horizon",
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
@@ -373,7 +380,8 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int 
                                           value_weight=cfg.value_weight,
                                           finetune_reward_weight=cfg.finetune_reward_weight,
                                           finetune_value_weight=cfg.finetune_value_weight,
-                                          dynamics_members=dynamics_members),
+                                          dynamics_members=dynamics_members,
+                                          mixed_precision=cfg.mixed_precision),
                         planner_config=cfg.planner()).to(cfg.device)
 
 
