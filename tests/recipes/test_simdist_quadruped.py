@@ -198,6 +198,7 @@ def test_planner_flags_reach_the_planner_config():
     (["--planner-elites", "100"], "num_elites (100) must be <= num_samples"),
     (["--planner-policy-noise-steps", "-1"], "policy_noise_steps must be >= 0"),
     (["--model-size", "huge"], "model_size: unknown size 'huge'"),
+    (["--mixed-precision", "fp8"], "mixed_precision: unknown precision 'fp8'"),
     (["--target", "unseen_scenes"], "change only what a camera"),
     (["--slice-len", "2"], "needs model_horizon < slice_len"),
     (["--model-history", "-1"], "model_history: must be >= 0"),
