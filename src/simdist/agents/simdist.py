@@ -68,7 +68,8 @@ class SimDistConfig:
     dynamics_members: int = 1
     # "bfloat16": pretraining and finetuning updates run their forward pass under
     # ``torch.autocast`` (matmuls in bfloat16, weights, optimiser state and latents in
-    # float32; DreamerV3 trains this way). ~4x faster MLPs on CPUs with AVX512-BF16.
+    # float32; DreamerV3 trains this way). 1.8-2.6x the updates/s on CPUs with AVX512-BF16
+    # (benchmarks/simdist_pretrain_precision.py).
     # Planning is unaffected (float32). "none": float32 throughout.
     mixed_precision: str = "none"
 

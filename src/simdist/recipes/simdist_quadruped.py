@@ -118,9 +118,9 @@ class Config:
     model_history: int = 0
     # precision of the world model's training updates: "none" (float32) or "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
-    # Planning stays float32. bfloat16 trains the wide model 2.6x faster on a CPU with
-    # AVX512-BF16 (benchmarks/simdist_pretrain_precision.py); transfer as in float32
-    # (benchmarks/README.md, issue-21 section above).
+    # Planning stays float32. bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
+    # AVX512-BF16 (benchmarks/simdist_pretrain_precision.py); transfer as in float32, three
+    # seeds (benchmarks/README.md, "Run to run, an ensemble of pretrainings, and a larger model").
     # (A folder from before the field existed trained in float32.)
     mixed_precision: str = field(default="bfloat16", metadata={ABSENT_MEANS: "none"})
     # steps of latent rollout in the pretraining and finetuning losses. Shorter than the
@@ -189,8 +189,9 @@ class Config:
     # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
     # ones (82/95/75% -> 93/61/104%; benchmarks/README.md, "One step of latency compensation").
     planner_latency_compensation: int = 0
-    # target rounds: cumulative minutes of 50 Hz target data after each round (two rounds
-    # keep the wide model's run near 30 minutes on 2 cores; --budgets-min 1 2 4 8 for the curve)
+    # target rounds: cumulative minutes of 50 Hz target data after each round. Two rounds:
+    # each costs ~8-12 min with the wide model on 2 cores, and the whole run is already ~35
+    # (README, recipe section); --budgets-min 1 2 4 8 for the curve.
     budgets_min: list[float] = field(default_factory=lambda: [2.0, 8.0])
     collect_episodes: int = 12  # worlds stepped at once while collecting
     finetune_updates: int = 1000  # per round, for every method (same data, same updates)
