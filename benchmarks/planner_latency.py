@@ -11,11 +11,13 @@ Usage:
     python benchmarks/planner_latency.py             # CPU default + SimDist reference
     python benchmarks/planner_latency.py --quick
     python benchmarks/planner_latency.py --compile   # also the torch.compile path
+    python benchmarks/planner_latency.py --size wide --batch 32 --configs "recipe H20" --precision bfloat16
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import time
 
@@ -83,18 +85,24 @@ def main():
                         help="only these configs (default: all)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--size", default="small", help="world-model size (tiny, small, wide, paper)")
+    parser.add_argument("--precision", default="none",
+                        help="our planner's PlannerConfig.precision (none, bfloat16); TorchRL's "
+                             "planner stays float32")
     args = parser.parse_args()
     torch.manual_seed(0)
     device = torch.device(args.device)
     wm = SimDistWorldModel.build(obs_dim=89, action_dim=12, size=args.size).to(device).eval()
-    # "recipe": the planner of recipes/simdist_quadruped.py's default preset (90% of the
+    # "recipe H20": the planner of recipes/simdist_quadruped.py's default preset (90% of the
     # samples proposed by the policy prior, scored once per step; TorchRL's planner has no
-    # prior, so it samples all 64 at random at the same H x N x iterations).
+    # prior, so it samples all 64 at random at the same H x N x iterations); "recipe": the
+    # same at the recipe's earlier horizon 10 (the figures in benchmarks/README.md before
+    # 2026-11-27).
+    recipe = PlannerConfig(horizon=10, num_samples=64, iterations=3, num_elites=8,
+                           policy_fraction=0.9, policy_noise=0.3)
     configs = {"CPU default": PlannerConfig(), "SimDist reference": PlannerConfig.reference(),
-               "recipe": PlannerConfig(horizon=10, num_samples=64, iterations=3, num_elites=8,
-                                       policy_fraction=0.9, policy_noise=0.3)}
+               "recipe": recipe, "recipe H20": dataclasses.replace(recipe, horizon=20)}
     print(f"device {device}, torch threads {torch.get_num_threads()}, latent {wm.latent_dim}, "
-          f"actions {wm.action_dim}, size {args.size!r}")
+          f"actions {wm.action_dim}, size {args.size!r}, precision {args.precision!r}")
     print(f"{'config':18s} {'H x N x iters (K)':>20s} {'simdist ms':>11s} {'compiled ms':>12s} "
           f"{'torchrl ms':>11s} {'speed-up':>9s}")
     if args.configs:
@@ -102,14 +110,15 @@ def main():
     for name, cfg in configs.items():
         calls = 3 if args.quick else (30 if cfg.num_samples < 200 else 8)
         latent = torch.rand(args.batch, wm.latent_dim, device=device)
-        ours = LatentMPPIPlanner.from_world_model(wm, cfg, seed=0)
+        ours_cfg = dataclasses.replace(cfg, precision=args.precision)
+        ours = LatentMPPIPlanner.from_world_model(wm, ours_cfg, seed=0)
         td = TensorDict({"latent": latent}, [args.batch], device=device)
         ours_ms = latency_ms(lambda: ours(td.clone()), calls, device)
         compiled_ms = float("nan")
         # The reference config is a GPU config: compiling its 8 x 25 unrolled loop on a
         # 2-core CPU takes far longer than it could ever save, so only the CPU one is.
         if args.compile and (name != "SimDist reference" or device.type == "cuda"):
-            compiled = LatentMPPIPlanner.from_world_model(wm, cfg, seed=0, compile=True)
+            compiled = LatentMPPIPlanner.from_world_model(wm, ours_cfg, seed=0, compile=True)
             start = time.perf_counter()
             compiled(td.clone())
             print(f"  ({name}: compile warm-up {time.perf_counter() - start:.0f} s)")

@@ -129,6 +129,7 @@ def test_accepts_tensordict_modules_and_unbatched_latents():
     (dict(value_weight=-0.5), "value_weight must be >= 0"),
     (dict(noise_beta=-1.0), "noise_beta must be >= 0"),
     (dict(noise_beta=math.nan), "noise_beta must be a finite number"),
+    (dict(precision="float16"), "precision must be one of"),
 ])
 def test_bad_configs_are_clear_errors(kwargs, message):
     with pytest.raises(ValueError, match=message):
@@ -334,3 +335,36 @@ def test_policy_noise_only_on_the_first_steps(steps):
     assert (elites[:, :, :steps] - 0.2).abs().min() > 0  # the first steps are perturbed
     with pytest.raises(ValueError, match="policy_noise_steps must be >= 0"):
         PlannerConfig(policy_noise_steps=-1)
+
+
+def test_bfloat16_planning_runs_the_models_in_bfloat16_and_returns_float32():
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(10, 3, size="tiny")
+    seen = []
+    hook = wm.dynamics.net[0].register_forward_hook(lambda m, i, o: seen.append(o.dtype))
+    latent = torch.randn(4, wm.latent_dim)
+    for precision, dtype in (("none", torch.float32), ("bfloat16", torch.bfloat16)):
+        seen.clear()
+        cfg = PlannerConfig(horizon=4, num_samples=32, num_elites=4, iterations=2,
+                            precision=precision)
+        out = _plan(LatentMPPIPlanner.from_world_model(wm, cfg, seed=0), latent)
+        assert set(seen) == {dtype}  # every candidate step went through the dynamics in it
+        for key in ("action", ("planner", "mean"), ("planner", "std"), ("planner", "rewards"),
+                    ("planner", "value"), ("planner", "elite_actions")):
+            assert out[key].dtype == torch.float32 and torch.isfinite(out[key]).all(), key
+        assert out["action"].abs().max() <= 1
+    hook.remove()
+
+
+def test_bfloat16_planning_still_finds_the_optimum():
+    # The bandit above with the optimum read through a Linear layer, which autocast runs in
+    # bfloat16 (8 significant bits: 0.7 is held to ~0.003).
+    best = torch.tensor([[0.7], [-0.3], [0.1]])
+    read = torch.nn.Linear(1, 1, bias=False)
+    torch.nn.init.ones_(read.weight)
+    cfg = PlannerConfig(horizon=1, num_samples=256, num_elites=16, iterations=6, init_std=1.0,
+                        max_std=1.0, precision="bfloat16")
+    planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -(a - read(z)).pow(2).sum(-1, keepdim=True),
+                                None, action_dim=1, seed=0, config=cfg)
+    out = _plan(planner, best.clone())
+    torch.testing.assert_close(out["action"], best, atol=0.03, rtol=0)

@@ -189,6 +189,7 @@ def test_planner_flags_reach_the_planner_config():
     from simdist.recipes.simdist_quadruped import Config
     assert Config(planner_policy_noise_steps=1).planner().policy_noise_steps == 1
     assert Config().planner().policy_noise_steps == 0  # noise on every step of the plan
+    assert Config(planner_precision="bfloat16").planner().precision == "bfloat16"
 
 
 @pytest.mark.parametrize("flags, message", [
@@ -199,6 +200,7 @@ def test_planner_flags_reach_the_planner_config():
     (["--planner-policy-noise-steps", "-1"], "policy_noise_steps must be >= 0"),
     (["--model-size", "huge"], "model_size: unknown size 'huge'"),
     (["--mixed-precision", "fp8"], "mixed_precision: unknown precision 'fp8'"),
+    (["--planner-precision", "fp8"], "planner_precision: unknown precision 'fp8'"),
     (["--target", "unseen_scenes"], "change only what a camera"),
     (["--slice-len", "2"], "needs model_horizon < slice_len"),
     (["--model-history", "-1"], "model_history: must be >= 0"),

@@ -47,7 +47,7 @@ from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_e
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, WorldModelEnsemble
 from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_skill
-from simdist.modules.planner import PlannerConfig
+from simdist.modules.planner import PLANNING_PRECISION, PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, stage_seed,
                                train_resumable)
@@ -189,6 +189,9 @@ class Config:
     # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
     # ones (82/95/75% -> 93/61/104%; benchmarks/README.md, "One step of latency compensation").
     planner_latency_compensation: int = 0
+    # arithmetic of the planner's candidate rollouts (PlannerConfig.precision): "none"
+    # (float32) or "bfloat16" (autocast; scores and the MPPI update stay float32).
+    planner_precision: str = field(default="none", metadata={ABSENT_MEANS: "none"})
     # target rounds: cumulative minutes of 50 Hz target data after each round. Two rounds:
     # each costs ~8-12 min with the wide model on 2 cores, and the whole run is already ~35
     # (README, recipe section); --budgets-min 1 2 4 8 for the curve.
@@ -226,6 +229,9 @@ class Config:
               f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
         check(self.mixed_precision in MIXED_PRECISION, "mixed_precision",
               f"unknown precision {self.mixed_precision!r}; valid: {sorted(MIXED_PRECISION)}")
+        check(self.planner_precision in PLANNING_PRECISION, "planner_precision",
+              f"unknown precision {self.planner_precision!r}; valid: "
+              f"{sorted(PLANNING_PRECISION)}")
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
                        "dataset_shard_episodes", "dataset_workers", "model_horizon",
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
@@ -268,7 +274,8 @@ class Config:
                              policy_fraction=self.planner_policy_fraction,
                              policy_noise=self.planner_policy_noise,
                              policy_noise_steps=self.planner_policy_noise_steps,
-                             latency_compensation=self.planner_latency_compensation)
+                             latency_compensation=self.planner_latency_compensation,
+                             precision=self.planner_precision)
 
 
 PRESETS = {
