@@ -190,10 +190,14 @@ class Config:
     # ones (82/95/75% -> 93/61/104%; benchmarks/README.md, "One step of latency compensation").
     planner_latency_compensation: int = 0
     # arithmetic of the planner's candidate rollouts (PlannerConfig.precision): "none"
-    # (float32) or "bfloat16" (autocast; scores and the MPPI update stay float32).
-    planner_precision: str = field(default="none", metadata={ABSENT_MEANS: "none"})
-    # target rounds: cumulative minutes of 50 Hz target data after each round. Two rounds:
-    # each costs ~8-12 min with the wide model on 2 cores, and the whole run is already ~35
+    # (float32) or "bfloat16" (autocast; scores and the MPPI update stay float32). bfloat16
+    # plans 2.6x faster on these cores and the same models just as well: slippery_slope,
+    # 3 seeds' 2-minute models and one 8-minute model, paired with float32 on the same
+    # worlds -2 [-9, 5] points (benchmarks/README.md, "bfloat16 planning"). A folder from
+    # before the field reads as float32, so old runs resume as they were made.
+    planner_precision: str = field(default="bfloat16", metadata={ABSENT_MEANS: "none"})
+    # target rounds: cumulative minutes of 50 Hz target data after each round. Two rounds
+    # (3.6 and 4.9 min on 2 cores with the wide model) keep the whole run at ~21 min
     # (README, recipe section); --budgets-min 1 2 4 8 for the curve.
     budgets_min: list[float] = field(default_factory=lambda: [2.0, 8.0])
     collect_episodes: int = 12  # worlds stepped at once while collecting
@@ -289,6 +293,7 @@ PRESETS = {
     "paper": {"episodes": 15, "episode_steps": 500, "dataset_episodes": 8192,
               "dataset_shard_episodes": 64, "dataset_workers": 4, "model_size": "paper",
               "mixed_precision": "none",  # the GPU path as measured (float32)
+              "planner_precision": "none",
               "model_horizon": 25, "pretrain_updates": 100_000, "slice_len": 50,
               "batch_slices": 16, "planner_horizon": 25, "planner_samples": 450,
               "planner_iterations": 8, "planner_elites": 64, "planner_policy_fraction": 0.05,
