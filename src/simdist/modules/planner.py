@@ -76,8 +76,8 @@ class PlannerConfig:
     policy_noise_steps: int = 0
     # Arithmetic of the candidates' rollouts: "none" (float32) or "bfloat16" (the models
     # run under torch.autocast: matmuls in bfloat16, scores accumulated and the MPPI
-    # update in float32). On CPUs with bfloat16 units a planning call costs about half;
-    # outputs stay float32 either way.
+    # update in float32). On CPU cores with AVX512-BF16 a call costs 2.6x less; on an H200
+    # only large sample counts gain (benchmarks/README.md). Outputs stay float32.
     precision: str = "none"
 
     def __post_init__(self):
