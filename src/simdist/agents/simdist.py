@@ -70,7 +70,7 @@ class SimDistConfig:
     # ``torch.autocast`` (matmuls in bfloat16, weights, optimiser state and latents in
     # float32; DreamerV3 trains this way). 1.8-2.6x the updates/s on CPUs with AVX512-BF16
     # (benchmarks/simdist_pretrain_precision.py).
-    # Planning is unaffected (float32). "none": float32 throughout.
+    # Planning has its own setting (PlannerConfig.precision). "none": float32 throughout.
     mixed_precision: str = "none"
 
 

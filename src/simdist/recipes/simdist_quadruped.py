@@ -118,7 +118,7 @@ class Config:
     model_history: int = 0
     # precision of the world model's training updates: "none" (float32) or "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
-    # Planning stays float32. bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
+    # Planning has its own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
     # AVX512-BF16 (benchmarks/simdist_pretrain_precision.py); transfer as in float32, three
     # seeds (benchmarks/README.md, "Run to run, an ensemble of pretrainings, and a larger model").
     # (A folder from before the field existed trained in float32.)
