@@ -112,15 +112,22 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
     @classmethod
     def build(cls, obs_dim: int, action_dim: int, size: str = "small",
               dynamics: nn.Module | None = None, **overrides) -> SimDistWorldModel:
-        """Builds a model from the size table (``tiny``, ``small``, ``paper``)."""
+        """Builds a model from the size table (``tiny``, ``small``, ``wide``, ``paper``).
+
+        ``overrides`` replace the size's entries (``latent_dim``, ``hidden``, ``history``,
+        ``simnorm_groups``) or add ``ignored_inputs`` (encoder inputs zeroed) and
+        ``dynamics_hidden`` (the dynamics MLP's width; default ``hidden``: the one part
+        SimDist finetunes may be given more capacity than the frozen ones).
+        """
         if size not in SIMDIST_SIZES:
             raise ValueError(f"unknown model size {size!r}; valid: {', '.join(SIMDIST_SIZES)}")
         s = {**SIMDIST_SIZES[size], **overrides}
         latent, hidden, groups = s["latent_dim"], s["hidden"], s["simnorm_groups"]
+        dynamics_hidden = s.get("dynamics_hidden") or hidden
         return cls(
             HistoryEncoder(obs_dim, s["history"], latent, hidden, simnorm_groups=groups,
                            ignored_inputs=s.get("ignored_inputs", ())),
-            dynamics or MLPDynamics(latent, action_dim, hidden, simnorm_groups=groups),
+            dynamics or MLPDynamics(latent, action_dim, dynamics_hidden, simnorm_groups=groups),
             ScalarHead(latent + action_dim, hidden, activation=nn.SiLU),
             ScalarHead(latent, hidden, activation=nn.SiLU),
             PolicyPrior(latent, action_dim, hidden),
