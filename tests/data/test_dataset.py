@@ -106,6 +106,8 @@ def test_worker_processes_give_a_deterministic_resumable_dataset(tmp_path, exper
     assert torch.equal(da["episode"][:, 0], torch.arange(4))
     with pytest.raises(ValueError, match="multiple of num_workers"):
         DatasetConfig(episodes=6, shard_episodes=3, num_workers=2)
+    with pytest.raises(ValueError, match=r"use \[1, 2, 4, 8, 16, 32\] workers"):
+        DatasetConfig(episodes=64, shard_episodes=32, num_workers=12)
 
 
 def test_unknown_backend_is_refused(tmp_path, experts):

@@ -28,6 +28,7 @@ from simdist.modules import SimDistWorldModel, WorldModelEnsemble
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.objectives import DynamicsFinetuneLoss, SimDistPretrainLoss
 from simdist.utils.device import module_device, move_to_device
+from simdist.utils.precision import AUTOCAST_DTYPES
 
 
 @dataclass
@@ -74,7 +75,8 @@ class SimDistConfig:
     mixed_precision: str = "none"
 
 
-MIXED_PRECISION = {"none": None, "bfloat16": torch.bfloat16}
+# SimDistConfig.mixed_precision -> the autocast dtype of the training updates
+MIXED_PRECISION = AUTOCAST_DTYPES
 
 
 # the actions a latency-compensating policy has sent that the robot may not apply yet

@@ -73,8 +73,12 @@ class DatasetConfig:
             raise ValueError(f"episodes ({self.episodes}) must be a positive multiple of "
                              f"shard_episodes ({self.shard_episodes})")
         if self.num_workers < 1 or self.shard_episodes % self.num_workers:
+            # every worker steps the same number of a shard's worlds; name the counts that
+            # work so a user with, say, 12 cores need not work them out
+            fits = [n for n in range(1, self.shard_episodes + 1) if self.shard_episodes % n == 0]
             raise ValueError(f"shard_episodes ({self.shard_episodes}) must be a multiple of "
-                             f"num_workers ({self.num_workers})")
+                             f"num_workers ({self.num_workers}): with these shards use "
+                             f"{fits} workers, or change shard_episodes")
         if self.episode_steps < 2:
             raise ValueError("episode_steps must be >= 2")
         if not 0 <= self.final_expert_probability <= 1:

@@ -20,9 +20,11 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from torch import nn
 
+from simdist.utils.precision import AUTOCAST_DTYPES
+
 
 # PlannerConfig.precision -> the autocast dtype of the candidates' rollouts
-PLANNING_PRECISION = {"none": None, "bfloat16": torch.bfloat16}
+PLANNING_PRECISION = AUTOCAST_DTYPES
 
 
 @dataclass(frozen=True)
