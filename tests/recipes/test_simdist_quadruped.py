@@ -138,7 +138,7 @@ def test_model_history_sets_the_encoders_window():
     assert default.world_model.encoder.history == 2  # the size's own
 
 
-def test_model_dynamics_hidden_widens_the_dynamics_alone_and_survives_save_and_load(tmp_path):
+def test_model_dynamics_hidden_and_latent_dim_resize_the_model_and_survive_save_and_load(tmp_path):
     from simdist.agents import SimDistAgent
     from simdist.recipes.simdist_quadruped import Config, new_agent
     agent = new_agent(Config(model_size="tiny", model_dynamics_hidden=48), obs_dim=10, action_dim=3)
@@ -148,6 +148,9 @@ def test_model_dynamics_hidden_widens_the_dynamics_alone_and_survives_save_and_l
     agent.save(tmp_path / "agent.pt", optimisers=False)
     loaded = SimDistAgent.load(tmp_path / "agent.pt")
     assert loaded.world_model.dynamics.net[0].out_features == 48
+    wider = new_agent(Config(model_size="tiny", model_latent_dim=24), obs_dim=10, action_dim=3)
+    assert wider.world_model.latent_dim == 24
+    assert wider.world_model.encoder.simnorm_groups == 3  # groups of 8
     for a, b in zip(wm.state_dict().values(), loaded.world_model.state_dict().values()):
         assert torch.equal(a, b)
 
@@ -219,6 +222,7 @@ def test_planner_flags_reach_the_planner_config():
     (["--slice-len", "2"], "needs model_horizon < slice_len"),
     (["--model-history", "-1"], "model_history: must be >= 0"),
     (["--model-dynamics-hidden", "-8"], "model_dynamics_hidden: must be >= 0"),
+    (["--model-latent-dim", "100"], "model_latent_dim: must be a multiple of 8"),
     (["--threads", "-1"], "threads: must be >= 0"),
     (["--ensemble-size", "0"], "ensemble_size: must be > 0"),
     (["--ensemble-shared-encoder"], "ensemble_shared_encoder: needs --ensemble-size > 1"),

@@ -62,6 +62,7 @@ from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
 STEPS_PER_MINUTE = 50 * 60  # 50 Hz control
+SIMNORM_GROUP = 8  # latent dimensions per SimNorm group when --model-latent-dim resizes it
 TARGET_KEYS = ["observation", "action", "is_init", ("next", "observation"),
                ("next", "reward"), ("next", "done"), ("next", "terminated")]
 
@@ -120,6 +121,9 @@ class Config:
     # one part SimDist finetunes and the one the planner runs at every step of every
     # candidate: 1024 instead of 512 costs ~1.5x the planner time (bfloat16, one thread).
     model_dynamics_hidden: int = 0
+    # latent size (0: the size's own, 64; the SimDist reference: 64, TD-MPC2: 512). SimNorm
+    # keeps groups of 8 (TD-MPC2's simnorm_dim), so it must be a multiple of 8.
+    model_latent_dim: int = 0
     # precision of the world model's training updates: "none" (float32) or "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
     # Planning has its own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
@@ -245,9 +249,11 @@ class Config:
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
                        "finetune_lr", "sac_batch_size", "pretrain_updates", "ensemble_size")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
-                       "model_history", "model_dynamics_hidden", "threads",
+                       "model_history", "model_dynamics_hidden", "model_latent_dim", "threads",
                        "finetune_reward_weight",
                        "finetune_value_weight", allow_zero=True)
+        check(self.model_latent_dim % SIMNORM_GROUP == 0, "model_latent_dim",
+              f"must be a multiple of {SIMNORM_GROUP} (SimNorm's group), got {self.model_latent_dim}")
         check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
               f"needs model_horizon < slice_len <= episode_steps, got {self.model_horizon}, "
               f"{self.slice_len}, {self.episode_steps}")
@@ -401,6 +407,9 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int 
     overrides = {"history": cfg.model_history} if cfg.model_history else {}
     if cfg.model_dynamics_hidden:
         overrides["dynamics_hidden"] = cfg.model_dynamics_hidden
+    if cfg.model_latent_dim:
+        overrides.update(latent_dim=cfg.model_latent_dim,
+                         simnorm_groups=cfg.model_latent_dim // SIMNORM_GROUP)
     if cfg.model_ignored_observations:
         overrides["ignored_inputs"] = ignored_inputs(cfg)
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
