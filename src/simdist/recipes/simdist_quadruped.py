@@ -122,8 +122,12 @@ class Config:
     # candidate: 1024 instead of 512 costs ~1.5x the planner time (bfloat16, one thread).
     model_dynamics_hidden: int = 0
     # latent size (0: the size's own, 64; the SimDist reference: 64, TD-MPC2: 512). SimNorm
-    # keeps groups of 8 (TD-MPC2's simnorm_dim), so it must be a multiple of 8.
-    model_latent_dim: int = 0
+    # keeps groups of 8 (TD-MPC2's simnorm_dim), so it must be a multiple of 8. 128 over 64:
+    # slippery_slope after 8 minutes 46% [38, 52] against 34% [26, 41], paired +12 [3, 21]
+    # (every seed higher), zero-shot +10 [0, 19], 2 minutes -2 [-14, 8]; three seeds
+    # (benchmarks/README.md, "More capacity where the model is finetuned"). A folder from
+    # before the field was made with the size's own latent.
+    model_latent_dim: int = field(default=128, metadata={ABSENT_MEANS: 0})
     # precision of the world model's training updates: "none" (float32) or "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
     # Planning has its own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
@@ -297,12 +301,14 @@ PRESETS = {
     "default": {},
     "tiny": {"episodes": 2, "episode_steps": 20, "heldout_episodes": 2, "expert_targets": ["sim", "slippery_slope"],
              "dataset_episodes": 4, "dataset_shard_episodes": 2, "model_size": "tiny",
+             "model_latent_dim": 0,
              "model_horizon": 3, "pretrain_updates": 4, "slice_len": 8, "batch_slices": 4,
              "planner_horizon": 3, "planner_samples": 16, "planner_iterations": 1,
              "planner_elites": 4, "budgets_min": [0.02, 0.04], "collect_episodes": 2,
              "finetune_updates": 3, "sac_batch_size": 16, "probe_updates": 3},
     "paper": {"episodes": 15, "episode_steps": 500, "dataset_episodes": 8192,
               "dataset_shard_episodes": 64, "dataset_workers": 4, "model_size": "paper",
+              "model_latent_dim": 0,  # the reference's 64
               "mixed_precision": "none",  # the GPU path as measured (float32)
               "planner_precision": "none",
               "model_horizon": 25, "pretrain_updates": 100_000, "slice_len": 50,
