@@ -125,8 +125,9 @@ class Config:
     # keeps groups of 8 (TD-MPC2's simnorm_dim), so it must be a multiple of 8. 128 over 64:
     # slippery_slope after 8 minutes 46% [38, 52] against 34% [26, 41], paired +12 [3, 21]
     # (every seed higher), zero-shot +10 [0, 19], 2 minutes -2 [-14, 8]; three seeds
-    # (benchmarks/README.md, "More capacity where the model is finetuned"). A folder from
-    # before the field was made with the size's own latent.
+    # (benchmarks/README.md, "More capacity where the model is finetuned"). The value
+    # applies whatever --model-size says (0 keeps that size's own). A folder from before
+    # the field was made with the size's own latent.
     model_latent_dim: int = field(default=128, metadata={ABSENT_MEANS: 0})
     # precision of the world model's training updates: "none" (float32) or "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
