@@ -148,11 +148,11 @@ def test_model_dynamics_hidden_and_latent_dim_resize_the_model_and_survive_save_
     agent.save(tmp_path / "agent.pt", optimisers=False)
     loaded = SimDistAgent.load(tmp_path / "agent.pt")
     assert loaded.world_model.dynamics.net[0].out_features == 48
+    for a, b in zip(wm.state_dict().values(), loaded.world_model.state_dict().values()):
+        assert torch.equal(a, b)
     wider = new_agent(Config(model_size="tiny", model_latent_dim=24), obs_dim=10, action_dim=3)
     assert wider.world_model.latent_dim == 24
     assert wider.world_model.encoder.simnorm_groups == 3  # groups of 8
-    for a, b in zip(wm.state_dict().values(), loaded.world_model.state_dict().values()):
-        assert torch.equal(a, b)
 
 
 def test_ignored_observation_groups_reach_the_encoder():

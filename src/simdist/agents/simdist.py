@@ -75,10 +75,6 @@ class SimDistConfig:
     mixed_precision: str = "none"
 
 
-# SimDistConfig.mixed_precision -> the autocast dtype of the training updates
-MIXED_PRECISION = AUTOCAST_DTYPES
-
-
 # the actions a latency-compensating policy has sent that the robot may not apply yet
 PENDING = ("simdist", "pending_actions")
 
@@ -177,9 +173,9 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self.planner_config = planner_config
         if config.dynamics_members < 1:
             raise ValueError(f"dynamics_members must be >= 1, got {config.dynamics_members}")
-        if config.mixed_precision not in MIXED_PRECISION:
+        if config.mixed_precision not in AUTOCAST_DTYPES:
             raise ValueError(f"unknown mixed_precision {config.mixed_precision!r}; valid: "
-                             f"{', '.join(MIXED_PRECISION)}")
+                             f"{', '.join(AUTOCAST_DTYPES)}")
         extra = [world_model.fresh_dynamics() for _ in range(config.dynamics_members - 1)]
         self.pretrain_loss = SimDistPretrainLoss(world_model, horizon=config.horizon,
                                                  bc_weight=config.bc_weight,
@@ -227,7 +223,7 @@ class SimDistAgent(ckpt_format.LoadableAgent):
 
     def _autocast(self):
         """The forward pass's precision context (``config.mixed_precision``)."""
-        dtype = MIXED_PRECISION[self.config.mixed_precision]
+        dtype = AUTOCAST_DTYPES[self.config.mixed_precision]
         return torch.autocast(self.device.type, dtype=dtype, enabled=dtype is not None)
 
     def pretrain_update(self, batch: TensorDictBase) -> dict[str, float]:

@@ -23,10 +23,6 @@ from torch import nn
 from simdist.utils.precision import AUTOCAST_DTYPES
 
 
-# PlannerConfig.precision -> the autocast dtype of the candidates' rollouts
-PLANNING_PRECISION = AUTOCAST_DTYPES
-
-
 @dataclass(frozen=True)
 class PlannerConfig:
     """MPPI/CEM hyperparameters (defaults: a CPU-friendly configuration).
@@ -117,8 +113,8 @@ class PlannerConfig:
             raise ValueError(f"value_weight must be >= 0, got {self.value_weight}")
         if self.noise_beta < 0:
             raise ValueError(f"noise_beta must be >= 0, got {self.noise_beta}")
-        if self.precision not in PLANNING_PRECISION:
-            raise ValueError(f"precision must be one of {sorted(PLANNING_PRECISION)}, got "
+        if self.precision not in AUTOCAST_DTYPES:
+            raise ValueError(f"precision must be one of {sorted(AUTOCAST_DTYPES)}, got "
                              f"{self.precision!r}")
 
     @classmethod
@@ -404,7 +400,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
                                 device=latent.device, dtype=latent.dtype), c.noise_beta)
                 if c.policy_noise_steps:
                     policy_noise[:, :, c.policy_noise_steps:] = 0
-            dtype = PLANNING_PRECISION[c.precision]
+            dtype = AUTOCAST_DTYPES[c.precision]
             try:
                 with torch.autocast(latent.device.type, dtype=dtype, enabled=dtype is not None):
                     mean, std, rewards, value, elites = self._plan_impl(

@@ -38,7 +38,6 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from simdist.agents import SimDistAgent, SimDistConfig
-from simdist.agents.simdist import MIXED_PRECISION
 from simdist.data import (DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.data.dataset import read_dataset_meta
@@ -47,7 +46,7 @@ from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_e
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, WorldModelEnsemble
 from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_skill
-from simdist.modules.planner import PLANNING_PRECISION, PlannerConfig
+from simdist.modules.planner import PlannerConfig
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, stage_seed,
                                train_resumable)
@@ -57,6 +56,7 @@ from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
 from simdist.utils.cli import check, check_builds, check_positive, parse_config
+from simdist.utils.precision import AUTOCAST_DTYPES
 from simdist.utils.stages import ABSENT_MEANS, field_defaults, read_json
 from simdist.viz import record_planning_episode
 
@@ -244,11 +244,11 @@ class Config:
                 check_builds(name, get_target, target)
         check(self.model_size in SIMDIST_SIZES, "model_size",
               f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
-        check(self.mixed_precision in MIXED_PRECISION, "mixed_precision",
-              f"unknown precision {self.mixed_precision!r}; valid: {sorted(MIXED_PRECISION)}")
-        check(self.planner_precision in PLANNING_PRECISION, "planner_precision",
+        check(self.mixed_precision in AUTOCAST_DTYPES, "mixed_precision",
+              f"unknown precision {self.mixed_precision!r}; valid: {sorted(AUTOCAST_DTYPES)}")
+        check(self.planner_precision in AUTOCAST_DTYPES, "planner_precision",
               f"unknown precision {self.planner_precision!r}; valid: "
-              f"{sorted(PLANNING_PRECISION)}")
+              f"{sorted(AUTOCAST_DTYPES)}")
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
                        "dataset_shard_episodes", "dataset_workers", "model_horizon",
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
