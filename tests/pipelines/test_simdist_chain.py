@@ -31,6 +31,9 @@ def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
     stats = progress_stats(target_data, command_index=command)
     assert (target_data["observation"][:, 0, command] > 0).all()
     assert len(stats["progress_m"]) == 2 and abs(stats["mean_fraction"]) < 10
+    # each episode's commanded speed, one of the env's, read from its first observation
+    assert stats["command_mps"] == target_data["observation"][:, 0, command].tolist()
+    assert set(stats["command_mps"]) <= {0.25, 0.5, 0.75}
     frozen = {k: v.clone() for k, v in agent.world_model.state_dict().items() if not k.startswith("dynamics")}
     finetune_data = as_slices(target_data, slice_len=5, batch_slices=2)
     for _ in range(2):

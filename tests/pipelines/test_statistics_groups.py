@@ -76,3 +76,20 @@ def test_the_results_table_shows_the_interval_over_seeds_when_seeds_were_pooled(
     assert "CI over seeds" in table and f"[{100 * low:4.0f}, {100 * high:4.0f}]%" in table
     one_seed = aggregate_seeds(runs[:1])
     assert "CI over seeds" not in format_table(one_seed, "ice")  # one seed: no such column
+
+
+def test_the_table_by_commanded_speed_splits_each_point_by_its_episodes_speeds():
+    from simdist.pipelines.report import aggregate_seeds, format_by_command
+    point = lambda f, c: {"fraction": f, "progress_m": f, "command_mps": c, "return": 1.0}
+    runs = [{"minutes": [0.0], "m": [point([-1.0, 0.6, 0.8], [0.25, 0.75, 0.75])]},
+            {"minutes": [0.0], "m": [point([-0.5, 0.7, 0.9], [0.25, 0.25, 0.75])]}]
+    merged = aggregate_seeds(runs)
+    assert merged["m"][0]["command_mps"] == [0.25, 0.75, 0.75, 0.25, 0.25, 0.75]
+    table = format_by_command(merged, "ice").splitlines()
+    assert "0.25 m/s" in table[1] and "0.75 m/s" in table[1]
+    # 0.25 m/s: (-1.0 - 0.5 + 0.7) / 3 = -27%; 0.75 m/s: (0.6 + 0.8 + 0.9) / 3 = 77%
+    assert "-27% [" in table[2] and "] (3)" in table[2] and "77% [" in table[2]
+    # records written before the speeds were kept: no table rather than a wrong one
+    old = {"minutes": [0.0], "m": [{"fraction": [0.1], "progress_m": [0.1], "return": 1.0}]}
+    assert format_by_command(old, "ice") is None
+    assert "command_mps" not in aggregate_seeds([runs[0], old])["m"][0]

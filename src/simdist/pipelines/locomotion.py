@@ -49,7 +49,9 @@ def rollout(env, policy, steps: int, desc: str | None = None) -> TensorDict:
 
 def progress_stats(td: TensorDict, command_index: int) -> dict:
     """Forward progress per episode (m) and as a fraction of the commanded distance, with
-    the fraction's mean, std, IQM and bootstrap 95% CI of the mean over episodes."""
+    the fraction's mean, std, IQM and bootstrap 95% CI of the mean over episodes, and each
+    episode's commanded speed (``command_mps``: the fraction's mean can hide one speed
+    that fails, see :func:`~simdist.pipelines.report.format_by_command`)."""
     progress = td["next", "forward_progress"][:, -1, 0]
     command = td["observation"][:, 0, command_index]
     distance = command * td.shape[1] * CONTROL_TIMESTEP
@@ -57,6 +59,7 @@ def progress_stats(td: TensorDict, command_index: int) -> dict:
     metres = progress.numpy()
     summary = summarise(fraction)
     return {"progress_m": metres.tolist(), "fraction": fraction.tolist(),
+            "command_mps": command.tolist(),
             "mean_m": float(np.mean(metres)), "std_m": float(np.std(metres)),
             "mean_fraction": summary["mean"], "std_fraction": summary["std"],
             "iqm_fraction": summary["iqm"], "ci_fraction": [summary["ci_low"], summary["ci_high"]],

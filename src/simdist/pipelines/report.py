@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simdist.pipelines.statistics import summarise_groups
+from simdist.pipelines.statistics import summarise, summarise_groups
 from simdist.utils.atomic import atomic_path
 
 
@@ -64,8 +64,55 @@ def format_table(results: dict, target: str) -> str:
     return "\n".join(lines)
 
 
+def format_by_command(results: dict, target: str) -> str | None:
+    """Mean % of the commanded distance per commanded speed: one row per method and budget.
+
+    The pooled mean can hide one speed that fails (on a slippery slope the slowest
+    command slides back while the faster ones climb), so the recipe prints this beside
+    the main table. ``None`` when some point lacks the per-episode ``command_mps``
+    (records written before it was kept).
+
+    Examples:
+        >>> p = {"fraction": [0.5, 0.7, -0.2, 0.0], "command_mps": [0.5, 0.5, 0.25, 0.25]}
+        >>> print(format_by_command({"minutes": [0.0], "m": [p]}, "ice"))  # doctest: +NORMALIZE_WHITESPACE
+        Forward progress in ice by commanded speed, % of the commanded distance (mean
+        [bootstrap 95% CI over that speed's episodes], episodes)
+        method    target data           0.25 m/s            0.5 m/s
+        m            0.00 min  -10% [ -20,    0] (2)  60% [  50,   70] (2)
+    """
+    rows = [(name, minutes, r) for name in _methods(results)
+            for minutes, r in zip(results["minutes"], results[name])]
+    if "planner_in_sim" in results:
+        rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
+    if not rows or any("command_mps" not in r for _, _, r in rows):
+        return None
+    speeds = sorted({round(c, 6) for _, _, r in rows for c in r["command_mps"]})
+    lines = [f"Forward progress in {target} by commanded speed, % of the commanded distance "
+             "(mean [bootstrap 95% CI over that speed's episodes], episodes)",
+             f"{'method':33s} {'target data':>12s}"
+             + "".join(f" {f'{s:g} m/s':>24s}" for s in speeds)]
+    for name, minutes, r in rows:
+        when = f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
+        fraction = np.asarray(r["fraction"], dtype=np.float64)
+        command = np.round(np.asarray(r["command_mps"], dtype=np.float64), 6)
+        cells = []
+        for speed in speeds:
+            chosen = fraction[command == speed]
+            if chosen.size == 0:
+                cells.append(f" {'-':>24s}")
+                continue
+            s = summarise(chosen)
+            cells.append(f" {100 * s['mean']:5.0f}% [{100 * s['ci_low']:4.0f}, "
+                         f"{100 * s['ci_high']:4.0f}] ({s['n']})".rjust(25))
+        lines.append(f"{name:33s} {when}" + "".join(cells))
+    return "\n".join(lines)
+
+
 def print_table(results: dict, target: str) -> None:
     print("\n" + format_table(results, target))
+    by_command = format_by_command(results, target)
+    if by_command is not None:
+        print("\n" + by_command)
 
 
 def plot_results(results: dict, target: str, path: str | Path) -> None:
@@ -104,8 +151,11 @@ def _aggregate_point(points: list[dict]) -> dict:
     fractions = [p["fraction"] for p in points]
     metres = np.concatenate([np.asarray(p["progress_m"], dtype=np.float64) for p in points])
     s = summarise_groups(fractions)
+    # the per-episode speeds travel with the fractions when every seed recorded them
+    commands = ({"command_mps": [c for p in points for c in p["command_mps"]]}
+                if all("command_mps" in p for p in points) else {})
     return {"fraction": [f for p in points for f in p["fraction"]], "progress_m": metres.tolist(),
-            "mean_m": float(metres.mean()), "std_m": float(metres.std()),
+            **commands, "mean_m": float(metres.mean()), "std_m": float(metres.std()),
             "mean_fraction": s["mean"], "std_fraction": s["std"], "iqm_fraction": s["iqm"],
             "ci_fraction": [s["ci_low"], s["ci_high"]], "seed_means": s["group_means"],
             **({"ci_fraction_seeds": [s["ci_seeds_low"], s["ci_seeds_high"]]}
