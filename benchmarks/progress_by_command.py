@@ -1,0 +1,57 @@
+"""A finished SimDist recipe run's forward progress split by commanded speed.
+
+The recipe draws one of three commanded speeds per evaluation episode and reports the
+mean over all episodes; this prints every point again per speed (mean, bootstrap 95% CI
+over that speed's episodes, episode count), for one seed's folder or a multi-seed
+folder's pooled table. Runs written before the recipe kept each episode's speed
+(``command_mps``) get it back from their records: fraction = progress / (speed x
+episode duration), so speed = progress / fraction / duration.
+
+    python benchmarks/progress_by_command.py --run outputs/simdist_quadruped
+    python benchmarks/progress_by_command.py --run MULTI_SEED_OUT    # after --seeds 0 1 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from simdist.envs.quadruped import CONTROL_TIMESTEP
+from simdist.pipelines.report import format_by_command
+
+
+def with_commands(point: dict, episode_s: float) -> dict:
+    """``point`` with ``command_mps`` recovered from progress and fraction when absent."""
+    if "command_mps" in point:
+        return point
+    progress = np.asarray(point["progress_m"], dtype=np.float64)
+    fraction = np.asarray(point["fraction"], dtype=np.float64)
+    if np.any(fraction == 0):  # 0 m of progress: the speed cannot be recovered
+        raise ValueError("an episode with zero progress: its commanded speed cannot be "
+                         "recovered; rerun the point with the current recipe")
+    return {**point, "command_mps": np.round(progress / fraction / episode_s, 3).tolist()}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", required=True, type=Path,
+                        help="a finished recipe output folder (its results.json)")
+    args = parser.parse_args(argv)
+    path = args.run / "results.json"
+    if not path.exists():
+        raise SystemExit(f"no results.json in {args.run}: is the run finished?")
+    results = json.loads(path.read_text())
+    episode_s = results["config"]["episode_steps"] * CONTROL_TIMESTEP
+    curves = {name: (points if name == "minutes" else
+                     with_commands(points, episode_s) if name == "planner_in_sim" else
+                     [with_commands(p, episode_s) for p in points])
+              for name, points in results["curves"].items()}
+    print(format_by_command(curves, results["config"]["target"]))
+
+
+if __name__ == "__main__":
+    main()
