@@ -9,6 +9,11 @@ episode duration), so speed = progress / fraction / duration.
 
     python benchmarks/progress_by_command.py --run outputs/simdist_quadruped
     python benchmarks/progress_by_command.py --run MULTI_SEED_OUT    # after --seeds 0 1 2
+    python benchmarks/progress_by_command.py --run RUN --data RUN/stages/round_2/data
+
+``--data``: target episodes the recipe recorded (a round's memmap folder); prints per
+commanded speed how many of them ended upside down at some step (the body-frame gravity
+sensor's z below -0.5: the quadruped rolled onto its back), and their mean reward.
 """
 
 from __future__ import annotations
@@ -19,8 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
 from simdist.pipelines.report import format_by_command
+from simdist.utils import load_memmap
+
+UPSIDE_DOWN = -0.5  # gravity's z in the body frame: 1 upright, -1 on its back
 
 
 def with_commands(point: dict, episode_s: float) -> dict:
@@ -40,6 +49,8 @@ def main(argv=None):
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--run", required=True, type=Path,
                         help="a finished recipe output folder (its results.json)")
+    parser.add_argument("--data", nargs="*", default=[], type=Path,
+                        help="memmap folders of recorded target episodes (a round's data)")
     args = parser.parse_args(argv)
     path = args.run / "results.json"
     if not path.exists():
@@ -51,6 +62,27 @@ def main(argv=None):
                      [with_commands(p, episode_s) for p in points])
               for name, points in results["curves"].items()}
     print(format_by_command(curves, results["config"]["target"]))
+    for folder in args.data:
+        print(f"\n{folder}")
+        print(flips_by_command(load_memmap(folder)[:, :], results["config"]["task"]))
+
+
+def flips_by_command(td, task: str) -> str:
+    """Per commanded speed: episodes, how many rolled onto their back, mean reward."""
+    env = make_env(task, num_envs=1, seed=0)
+    layout = env.observation_layout
+    env.close()
+    obs = td["observation"]
+    command = obs[:, 0, layout["command"].start].double().round(decimals=6)
+    upside_down = (obs[..., layout["gravity"].start + 2] < UPSIDE_DOWN).any(1)
+    reward = td["next", "reward"][..., 0].mean(1)
+    lines = ["| speed (m/s) | episodes | rolled onto their back | mean reward per step |",
+             "| --- | --- | --- | --- |"]
+    for speed in sorted(set(command.tolist())):
+        chosen = command == speed
+        lines.append(f"| {speed:g} | {int(chosen.sum())} | {int(upside_down[chosen].sum())} | "
+                     f"{float(reward[chosen].mean()):.2f} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
