@@ -47,6 +47,9 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     assert curves["SimDist: finetune dynamics"][0] == results["planner_zero_shot"]["slippery_slope"]
     assert (tmp_path / "forward_progress.png").stat().st_size > 0
     assert "95% CI" in proc.stdout and "SimDist: finetune dynamics" in proc.stdout
+    # every point keeps its episodes' commanded speeds, and the table by speed is printed
+    assert all(len(r["command_mps"]) == 2 for m in methods for r in curves[m])
+    assert "by commanded speed" in proc.stdout
     # Finetuning touched only the dynamics: every other tensor equals the pretrained one.
     pretrained = torch.load(tmp_path / "stages" / "pretrain" / "world_model.pt", weights_only=True)
     finetuned = torch.load(tmp_path / "stages" / "round_2" / "simdist.pt", weights_only=True)
@@ -290,6 +293,8 @@ def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_e
         for i, point in enumerate(points):
             fractions = [r["curves"][name][i]["fraction"] for r in per_seed]
             assert point["fraction"] == fractions[0] + fractions[1]  # pooled episodes
+            speeds = [r["curves"][name][i]["command_mps"] for r in per_seed]
+            assert point["command_mps"] == speeds[0] + speeds[1]  # in the same order
             assert point["seed_means"] == pytest.approx([sum(f) / len(f) for f in fractions])
             assert point["ci_fraction"][0] <= point["mean_fraction"] <= point["ci_fraction"][1]
             low, high = point["ci_fraction_seeds"]  # the interval that resamples the seeds
