@@ -21,6 +21,9 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
     # the planner after 2000, 8000 and 16000 updates of one run, per-episode fractions to JSON
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 16000 --eval-at 2000 8000 16000 --json ft.json
+    # the same without what follows a rollover (25 steps of it kept)
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \
+        RUN/stages/round_2/data --updates 2000 --keep-after-rollover 25 --json ft_cut.json
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from pathlib import Path
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
+from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
 
 from simdist.envs import get_target
 from simdist.objectives.simdist_pretrain import latent_prediction_error
@@ -93,7 +97,10 @@ def finetune(args) -> None:
     report("before")
     data = torch.cat([load_memmap(Path(p))[:, :].select(*recipe.TARGET_KEYS)
                       for p in args.train], 0)
-    buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+    if args.keep_after_rollover is None:
+        buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+    else:
+        buffer = slices_until_rollover(data, cfg, args.keep_after_rollover)
     eval_at = set(args.eval_at or [args.updates])
     if max(eval_at) > args.updates or min(eval_at) < 0:
         raise SystemExit(f"--eval-at must lie in [0, --updates={args.updates}], got {eval_at}")
@@ -127,6 +134,27 @@ def finetune(args) -> None:
                                                "evaluations": evaluations}, indent=1))
 
 
+def slices_until_rollover(data, cfg, keep_after: int) -> TensorDictReplayBuffer:
+    """Like ``as_slices``, but each episode ends ``keep_after`` steps after the quadruped
+    first rolls onto its back (body-frame gravity z < -0.5): the rest, sliding on its back,
+    is data the planner never needs and the consistency loss would still fit."""
+    env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, 0, task=cfg.task)
+    z_index = env.base_env.observation_layout["gravity"].start + 2
+    env.close()
+    episodes, steps = data.shape
+    upside_down = data["observation"][..., z_index] < -0.5                 # [episodes, steps]
+    first = torch.where(upside_down.any(1), upside_down.float().argmax(1), steps)
+    keep = torch.arange(steps)[None] < (first + keep_after).clamp(max=steps)[:, None]
+    flat = data.clone()
+    flat.set("episode", torch.arange(episodes)[:, None].expand(episodes, steps).clone())
+    flat = flat[keep]
+    print(f"until rollover + {keep_after}: {int(keep.sum())} of {episodes * steps} steps kept "
+          f"({int((first < steps).sum())} of {episodes} episodes rolled over)", flush=True)
+    sampler = SliceSampler(slice_len=cfg.slice_len, traj_key="episode", strict_length=True)
+    return TensorDictReplayBuffer(storage=TensorStorage(flat), sampler=sampler,
+                                  batch_size=cfg.slice_len * cfg.batch_slices)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -151,6 +179,9 @@ def main(argv=None):
     f.add_argument("--eval-at", type=int, nargs="*", default=None,
                    help="evaluate the planner after these update counts (default: --updates)")
     f.add_argument("--json", default=None, help="write each evaluation's per-episode fractions here")
+    f.add_argument("--keep-after-rollover", type=int, default=None, metavar="STEPS",
+                   help="end each training episode this many steps after the quadruped first "
+                        "rolls onto its back (default: keep whole episodes)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     (collect if args.step == "collect" else finetune)(args)

@@ -147,6 +147,8 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
         raise ValueError(f"--ensemble names models not in --ranking: {sorted(unknown)}")
     rho = {k: [] for k in [*agents, *ensembles]}
     pick = {k: [] for k in rho}
+    speed = []  # each state's commanded speed, for the table per speed
+    command = env.base_env.observation_layout["command"].start
     td = env.reset()
     with torch.no_grad():
         for t in range(max(checkpoints) + 1):
@@ -165,6 +167,7 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
                     scores[k] = planners[k]._evaluate(latent, actions)[0]
                 for k, members in ensembles.items():
                     scores[k] = torch.stack([standardise(scores[m]) for m in members]).mean(0)
+                speed += td["observation"][:, command].tolist()
                 for k, predicted in scores.items():
                     for b in range(worlds):
                         rho[k].append(stats.spearmanr(true[b], predicted[b]).statistic)
@@ -175,10 +178,15 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
     env.close()
     print(f"| model | domain | Spearman (true vs predicted score) | model's pick (0 mean, 1 best) |")
     print("| --- | --- | --- | --- |")
+    speed = torch.tensor(speed).round(decimals=6)
     for k in rho:
         r, q = torch.tensor(rho[k]), torch.tensor(pick[k])
-        print(f"| {k} | {domain} | {r.nanmean():.2f} +- {r[~r.isnan()].std():.2f} | "
-              f"{q.mean():.2f} +- {q.std():.2f} (n={len(q)}) |", flush=True)
+        rows = [(domain, torch.ones_like(speed, dtype=torch.bool))]
+        rows += [(f"{domain}, {s:g} m/s", speed == s) for s in sorted(set(speed.tolist()))]
+        for where, chosen in rows:
+            rs, qs = r[chosen], q[chosen]
+            print(f"| {k} | {where} | {rs.nanmean():.2f} +- {rs[~rs.isnan()].std():.2f} | "
+                  f"{qs.mean():.2f} +- {qs.std():.2f} (n={len(qs)}) |", flush=True)
 
 
 def standardise(scores: torch.Tensor) -> torch.Tensor:
