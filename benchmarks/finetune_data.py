@@ -138,11 +138,10 @@ def slices_until_rollover(data, cfg, keep_after: int) -> TensorDictReplayBuffer:
     """Like ``as_slices``, but each episode ends ``keep_after`` steps after the quadruped
     first rolls onto its back (body-frame gravity z < -0.5): the rest, sliding on its back,
     is data the planner never needs and the consistency loss would still fit."""
-    env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, 0, task=cfg.task)
-    z_index = env.base_env.observation_layout["gravity"].start + 2
-    env.close()
+    from progress_by_command import upside_down_steps  # a sibling script (benchmarks/)
+
     episodes, steps = data.shape
-    upside_down = data["observation"][..., z_index] < -0.5                 # [episodes, steps]
+    upside_down = upside_down_steps(data["observation"], cfg.task)          # [episodes, steps]
     first = torch.where(upside_down.any(1), upside_down.float().argmax(1), steps)
     keep = torch.arange(steps)[None] < (first + keep_after).clamp(max=steps)[:, None]
     flat = data.clone()

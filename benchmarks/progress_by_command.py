@@ -67,14 +67,23 @@ def main(argv=None):
         print(flips_by_command(load_memmap(folder)[:, :], results["config"]["task"]))
 
 
-def flips_by_command(td, task: str) -> str:
-    """Per commanded speed: episodes, how many rolled onto their back, mean reward."""
+def observation_layout(task: str):
     env = make_env(task, num_envs=1, seed=0)
     layout = env.observation_layout
     env.close()
+    return layout
+
+
+def upside_down_steps(observation, task: str):
+    """``[episodes, steps]`` bool: the quadruped is on its back (gravity's body-frame z)."""
+    return observation[..., observation_layout(task)["gravity"].start + 2] < UPSIDE_DOWN
+
+
+def flips_by_command(td, task: str) -> str:
+    """Per commanded speed: episodes, how many rolled onto their back, mean reward."""
     obs = td["observation"]
-    command = obs[:, 0, layout["command"].start].double().round(decimals=6)
-    upside_down = (obs[..., layout["gravity"].start + 2] < UPSIDE_DOWN).any(1)
+    command = obs[:, 0, observation_layout(task)["command"].start].double().round(decimals=6)
+    upside_down = upside_down_steps(obs, task).any(1)
     reward = td["next", "reward"][..., 0].mean(1)
     lines = ["| speed (m/s) | episodes | rolled onto their back | mean reward per step |",
              "| --- | --- | --- | --- |"]

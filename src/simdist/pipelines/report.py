@@ -19,11 +19,18 @@ def _methods(results: dict) -> list[str]:
     return [k for k in results if k not in ("minutes", "planner_in_sim")]
 
 
+def _rows(results: dict) -> list[tuple[str, float | None, dict]]:
+    """``(method, minutes, point)`` per table row; the sim reference last, without minutes."""
+    rows = [(name, minutes, r) for name in _methods(results)
+            for minutes, r in zip(results["minutes"], results[name])]
+    if "planner_in_sim" in results:
+        rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
+    return rows
+
+
 def _pooled_over_seeds(results: dict) -> bool:
     """Whether the points carry the interval that resamples seeds (several seeds pooled)."""
-    points = [r for name in _methods(results) for r in results[name]]
-    points += [results["planner_in_sim"]] if "planner_in_sim" in results else []
-    return any("ci_fraction_seeds" in r for r in points)
+    return any("ci_fraction_seeds" in r for _, _, r in _rows(results))
 
 
 def format_table(results: dict, target: str) -> str:
@@ -42,10 +49,7 @@ def format_table(results: dict, target: str) -> str:
              "(mean, IQM, bootstrap 95% CI of the mean)",
              f"{'method':33s} {'target data':>12s} {'progress (m)':>13s} {'mean':>6s} "
              f"{'IQM':>6s} {'95% CI':>13s}"]
-    rows = [(name, minutes, r) for name in _methods(results)
-            for minutes, r in zip(results["minutes"], results[name])]
-    if "planner_in_sim" in results:
-        rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
+    rows = _rows(results)
     # several seeds: the interval that also resamples the seeds (interval_over_seeds)
     over_seeds = _pooled_over_seeds(results)
     if over_seeds:
@@ -80,10 +84,7 @@ def format_by_command(results: dict, target: str) -> str | None:
         method    target data           0.25 m/s            0.5 m/s
         m            0.00 min  -10% [ -20,    0] (2)  60% [  50,   70] (2)
     """
-    rows = [(name, minutes, r) for name in _methods(results)
-            for minutes, r in zip(results["minutes"], results[name])]
-    if "planner_in_sim" in results:
-        rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
+    rows = _rows(results)
     if not rows or any("command_mps" not in r for _, _, r in rows):
         return None
     speeds = sorted({round(c, 6) for _, _, r in rows for c in r["command_mps"]})
