@@ -1,0 +1,192 @@
+"""How many rendered images does a TWIST pixel readout need to be precise? (issue 19; not a
+speed benchmark)
+
+The TWIST diagnosis (benchmarks/README.md, "Where the student must see well, and how well")
+found that a student keeps 70% of the Oracle only if it reads the cart position and the
+pole's sine to ~0.01-0.02, and that the best readout of the recipe's images reaches ~.043
+on held-out scenes from ~4000 distinct balancing states. This script measures the curve
+behind that figure without a teacher run: cartpole states drawn uniformly from the
+balancing region (pole within ``--max-angle`` of upright, cart within ``--max-cart``),
+each rendered once under TWIST's training randomisation (``--camera train`` adds a camera
+pose draw per image, 1.5x the evaluation's widths), a fresh copy of the student's CNN
+(``PixelEncoder``, LayerNorm, per-image standardisation, random shift 4) fitted to
+``(x, cos, sin)`` for ``--updates`` updates per training-set size, and the RMSE in state
+units measured on fresh states rendered three ways: the training randomisation, the
+evaluation's held-out textures without and with its camera jitter (drawn per image).
+
+Rendering runs in ``--workers`` processes (one MuJoCo context each); training runs on
+``--device``. Every finished probe is appended to ``--json`` at once.
+
+    # the curve on a GPU machine (~6 min on one H200 with 14 render workers)
+    python benchmarks/twist_readout_scale.py --device cuda --workers 14 \\
+        --train-images 4000 16000 64000 --camera none train --updates 6000 --json scale.json
+    # a quick look on the CPU
+    python benchmarks/twist_readout_scale.py --train-images 2000 --updates 300 --test-images 500
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import time
+from pathlib import Path
+
+import simdist  # noqa: F401  (headless GL set-up before dm_control)
+import torch
+
+from simdist.envs import VisualRandomisation
+from simdist.modules import PixelEncoder, RandomShift
+from simdist.recipes.twist_dmc import TRAIN_CAMERA_JITTER
+
+TASK = "cartpole-balance"
+TARGETS = ("x", "cos", "sin")
+
+
+def draw_states(n: int, seed: int, max_angle: float, max_cart: float) -> torch.Tensor:
+    """``[n, 2]`` cart positions and pole angles, uniform in the balancing region."""
+    g = torch.Generator().manual_seed(seed)
+    x = (torch.rand(n, generator=g) * 2 - 1) * max_cart
+    angle = (torch.rand(n, generator=g) * 2 - 1) * max_angle
+    return torch.stack([x, angle], -1)
+
+
+def _render_chunk(args) -> torch.Tensor:
+    """One worker: ``qpos`` rows rendered once each under a fresh draw of ``visual``."""
+    qpos, visual, seed = args
+    from simdist.pipelines import control_env  # in the worker: its own GL context
+    env = control_env(TASK, seed, pixels=True, visual=visual)
+    sim = env.base_env.sims[0]
+    out = torch.empty(len(qpos), 64, 64, 3, dtype=torch.uint8)
+    try:
+        for i, q in enumerate(qpos.tolist()):
+            sim.physics.data.qpos[:2] = q
+            sim.physics.forward()
+            sim._vis_editor.randomise(sim._vis_rng)
+            out[i] = torch.from_numpy(sim.render().copy())
+    finally:
+        env.close()
+    return out
+
+
+def render(qpos: torch.Tensor, visual: VisualRandomisation, seed: int, workers: int) -> torch.Tensor:
+    """``[N, 64, 64, 3]`` uint8 images of ``qpos`` (cart position, pole angle)."""
+    chunks = torch.tensor_split(qpos, max(1, min(workers, len(qpos))))
+    jobs = [(c, visual, seed * 1000 + i) for i, c in enumerate(chunks)]
+    if workers <= 1:
+        return torch.cat([_render_chunk(j) for j in jobs])
+    with mp.get_context("spawn").Pool(len(jobs)) as pool:
+        return torch.cat(pool.map(_render_chunk, jobs))
+
+
+def targets(qpos: torch.Tensor) -> torch.Tensor:
+    """``(x, cos, sin)`` of ``qpos`` rows, the positions a TWIST student must read."""
+    return torch.stack([qpos[:, 0], qpos[:, 1].cos(), qpos[:, 1].sin()], -1)
+
+
+def fit_probe(images: torch.Tensor, y: torch.Tensor, tests: dict, args, device) -> list[dict]:
+    """Fits the student's CNN + a linear head to standardised ``y``; RMSE per test set
+    at each quarter of ``args.updates``."""
+    torch.manual_seed(args.seed)
+    encoder = PixelEncoder(args.depth, norm="layer", input_norm="image").to(device)
+    head = torch.nn.Linear(encoder.embed_dim, y.shape[-1]).to(device)
+    shift = RandomShift(args.shift, "frame")
+    params = [*encoder.parameters(), *head.parameters()]
+    optim = torch.optim.Adam(params, lr=args.lr)
+    # cosine decay to 1% of the rate: a readout is judged on its final precision
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        optim, lambda s: 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(s, args.updates) / args.updates)))
+    mean, std = y.mean(0), y.std(0)
+    images, y = images.to(device), y.to(device)
+    mean, std = mean.to(device), std.to(device)
+
+    def rmse(x_img: torch.Tensor, x_y: torch.Tensor) -> list[float]:
+        encoder.eval()
+        with torch.no_grad():
+            out = torch.cat([head(encoder(x_img[i:i + 1000].to(device)))
+                             for i in range(0, len(x_img), 1000)]) * std + mean
+        encoder.train()
+        return [round(v, 4) for v in (out - x_y.to(device)).pow(2).mean(0).sqrt().tolist()]
+
+    rows, start = [], time.perf_counter()
+    checkpoints = {max(1, args.updates * k // 4) for k in (1, 2, 3, 4)}
+    for step in range(1, args.updates + 1):
+        index = torch.randint(len(images), (args.batch,), device=device)
+        batch = shift(images[index])
+        loss = (head(encoder(batch)) - (y[index] - mean) / std).pow(2).mean()
+        optim.zero_grad(set_to_none=True)
+        loss.backward()
+        optim.step()
+        sched.step()
+        if step in checkpoints:
+            row = {"updates": step, "loss": round(loss.item(), 5),
+                   "seconds": round(time.perf_counter() - start, 1)}
+            for name, (x_img, x_y) in tests.items():
+                row[f"rmse_{name}"] = rmse(x_img, x_y)
+            rows.append(row)
+    return rows
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--train-images", type=int, nargs="+", default=[4000, 16000])
+    p.add_argument("--camera", nargs="+", choices=["none", "train"], default=["none"],
+                   help="training images without / with a camera pose draw per image")
+    p.add_argument("--test-images", type=int, default=2000)
+    p.add_argument("--updates", type=int, default=3000)
+    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--depth", type=int, default=32)
+    p.add_argument("--shift", type=int, default=4)
+    p.add_argument("--max-angle", type=float, default=0.3, help="radians from upright")
+    p.add_argument("--max-cart", type=float, default=1.0, help="metres from the centre")
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", type=Path, default=None)
+    args = p.parse_args(argv)
+    if args.updates < 4 or min(args.train_images) < 1:
+        p.error("--updates must be >= 4 and --train-images >= 1")
+    device = torch.device(args.device)
+
+    start = time.perf_counter()
+    test_q = draw_states(args.test_images, args.seed + 1, args.max_angle, args.max_cart)
+    tests = {}
+    for name, visual in (("train_dr", VisualRandomisation.training()),
+                         ("heldout_nocam", VisualRandomisation.heldout_evaluation(camera=False)),
+                         ("heldout", VisualRandomisation.heldout_evaluation())):
+        tests[name] = (render(test_q, visual, args.seed + 10 + len(tests), args.workers),
+                       targets(test_q))
+    print(f"rendered {3 * len(test_q)} test images in {time.perf_counter() - start:.0f} s",
+          flush=True)
+    inner = test_q[:, 1].abs() < args.max_angle / 3  # the pole near upright
+    for name in list(tests):
+        tests[f"{name}_inner"] = (tests[name][0][inner], tests[name][1][inner])
+    spread = targets(test_q).std(0).tolist()
+    print(f"test spread (x, cos, sin): {[round(s, 4) for s in spread]}", flush=True)
+
+    largest = max(args.train_images)
+    for camera in args.camera:
+        visual = (VisualRandomisation.training() if camera == "none"
+                  else VisualRandomisation.training(camera=True, **TRAIN_CAMERA_JITTER))
+        t = time.perf_counter()
+        train_q = draw_states(largest, args.seed + 100, args.max_angle, args.max_cart)
+        images = render(train_q, visual, args.seed + 200 + (camera == "train"), args.workers)
+        fps = largest / (time.perf_counter() - t)
+        print(f"camera={camera}: rendered {largest} training images at {fps:.0f} images/s",
+              flush=True)
+        for n in sorted(args.train_images):
+            rows = fit_probe(images[:n], targets(train_q[:n]), tests, args, device)
+            for row in rows:
+                row.update({"camera": camera, "train_images": n, "device": str(device),
+                            "render_fps": round(fps), "test_spread": spread})
+                print(json.dumps(row), flush=True)
+            if args.json:
+                with args.json.open("a") as f:
+                    for row in rows:
+                        f.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,51 @@
+"""benchmarks/twist_readout_scale.py: state draws, targets, renders and the probe's rows."""
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+_spec = importlib.util.spec_from_file_location(
+    "twist_readout_scale", ROOT / "benchmarks" / "twist_readout_scale.py")
+scale = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(scale)
+
+
+def test_states_stay_in_the_balancing_region_and_are_seeded():
+    q = scale.draw_states(500, 3, max_angle=0.2, max_cart=0.5)
+    assert q.shape == (500, 2)
+    assert q[:, 0].abs().max() <= 0.5 and q[:, 1].abs().max() <= 0.2
+    assert q[:, 1].abs().max() > 0.15  # uniform: the edges are reached
+    assert torch.equal(q, scale.draw_states(500, 3, max_angle=0.2, max_cart=0.5))
+
+
+def test_targets_are_cart_position_cosine_and_sine():
+    q = torch.tensor([[0.3, 0.0], [-0.2, math.pi / 6]])
+    expected = torch.tensor([[0.3, 1.0, 0.0], [-0.2, math.sqrt(3) / 2, 0.5]])
+    assert torch.allclose(scale.targets(q), expected, atol=1e-6)
+
+
+def test_renders_follow_the_state(tmp_path):
+    q = torch.tensor([[0.0, 0.0], [0.0, 0.0], [0.8, 0.25]])
+    visual = scale.VisualRandomisation.training(textures=None, colours=None, lighting=False)
+    images = scale.render(q, visual, seed=0, workers=1)
+    assert images.shape == (3, 64, 64, 3) and images.dtype == torch.uint8
+    assert torch.equal(images[0], images[1])  # same state, nothing randomised
+    assert not torch.equal(images[0], images[2])  # the cart moved, the pole leans
+
+
+def test_probe_rows_and_json(tmp_path):
+    out = tmp_path / "scale.json"
+    scale.main(["--train-images", "6", "12", "--updates", "4", "--batch", "4",
+                "--test-images", "6", "--depth", "4", "--json", str(out)])
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [(r["train_images"], r["updates"]) for r in rows] == [
+        (6, 1), (6, 2), (6, 3), (6, 4), (12, 1), (12, 2), (12, 3), (12, 4)]
+    for row in rows:
+        for name in ("train_dr", "heldout_nocam", "heldout"):
+            assert len(row[f"rmse_{name}"]) == 3
+            assert all(math.isfinite(v) and v >= 0 for v in row[f"rmse_{name}"])
+        assert row["camera"] == "none" and row["device"] == "cpu"
