@@ -30,6 +30,8 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   readout's ``--positions`` instead of the exact ones (``--extra-renders K``: the readout
   also sees each training state under K more draws); prints the readout's error on
   D's balancing states (D's images and the same states under the held-out scenes).
+  ``--readout-file F`` freezes a readout fitted elsewhere instead (e.g. on many renders
+  of balancing states by ``benchmarks/twist_readout_scale.py --save-readouts``).
 - ``delayed``: no student: the Oracle reading the state ``--delays`` control steps late
   (a student whose latent lags the scene keeps at most this).
 - ``probe``: the student's CNN trained *supervised* to regress the state from one
@@ -330,7 +332,9 @@ def distil(args, cfg, teacher_result: dict) -> None:
                          else f"{args.variant}_{args.name}")
     readout = None
     if args.variant == "readout":  # trained once, kept beside the student's checkpoint
-        path = stage / "readout.pt"
+        path = args.readout_file or stage / "readout.pt"
+        if args.readout_file and not path.exists():
+            raise FileNotFoundError(f"--readout-file {path} does not exist")
         if path.exists():
             n_state = recorded[0]["next", "state"].shape[-1]
             encoder = probe_encoder(args, cfg)
@@ -817,6 +821,9 @@ def main():
                         help="delayed: how many control steps late the Oracle reads the state")
     parser.add_argument("--warm-updates", type=int, default=1200,
                         help="warm: encoder-only updates before distillation")
+    parser.add_argument("--readout-file", type=Path, default=None,
+                        help="readout: a fitted readout to freeze instead of fitting one on "
+                             "D (e.g. from `twist_readout_scale.py --save-readouts`)")
     parser.add_argument("--name", default="base",
                         help="a label for the log (pixels: also the checkpoint folder)")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_diagnosis"))

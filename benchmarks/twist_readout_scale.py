@@ -20,6 +20,9 @@ Rendering runs in ``--workers`` processes (one MuJoCo context each); training ru
     # the curve on a GPU machine (~6 min on one H200 with 14 render workers)
     python benchmarks/twist_readout_scale.py --device cuda --workers 14 \\
         --train-images 4000 16000 64000 --camera none train --updates 6000 --json scale.json
+    # keep the fitted readouts for a student (twist_diagnosis.py readout --readout-file)
+    python benchmarks/twist_readout_scale.py --device cuda --workers 15 --train-images 16000 \
+        --camera train --updates 6000 --save-readouts readouts/
     # a quick look on the CPU
     python benchmarks/twist_readout_scale.py --train-images 2000 --updates 300 --test-images 500
 """
@@ -85,9 +88,11 @@ def targets(qpos: torch.Tensor) -> torch.Tensor:
     return torch.stack([qpos[:, 0], qpos[:, 1].cos(), qpos[:, 1].sin()], -1)
 
 
-def fit_probe(images: torch.Tensor, y: torch.Tensor, tests: dict, args, device) -> list[dict]:
+def fit_probe(images: torch.Tensor, y: torch.Tensor, tests: dict, args,
+              device) -> tuple[list[dict], dict]:
     """Fits the student's CNN + a linear head to standardised ``y``; RMSE per test set
-    at each quarter of ``args.updates``."""
+    at each quarter of ``args.updates``, and the fitted readout as a CPU state dict in
+    ``benchmarks/twist_diagnosis.StateReadout``'s layout (see ``readout_state_dict``)."""
     torch.manual_seed(args.seed)
     encoder = PixelEncoder(args.depth, norm="layer", input_norm="image").to(device)
     head = torch.nn.Linear(encoder.embed_dim, y.shape[-1]).to(device)
@@ -125,7 +130,27 @@ def fit_probe(images: torch.Tensor, y: torch.Tensor, tests: dict, args, device) 
             for name, (x_img, x_y) in tests.items():
                 row[f"rmse_{name}"] = rmse(x_img, x_y)
             rows.append(row)
-    return rows
+    return rows, readout_state_dict(encoder, head, mean, std)
+
+
+#: cartpole's state dimensions (x, cos, sin, v, omega): a readout predicts the first three
+STATE_DIM = 5
+
+
+def readout_state_dict(encoder: torch.nn.Module, head: torch.nn.Linear, mean: torch.Tensor,
+                       std: torch.Tensor) -> dict:
+    """The fitted ``(x, cos, sin)`` readout in the layout of ``twist_diagnosis``'s frozen
+    ``StateReadout`` (a head over all five state dimensions, of which it reads the first
+    three), so that ``twist_diagnosis.py readout --readout-file F`` trains a student on it.
+    The two velocity rows are zero: a single image does not show them."""
+    weight = torch.zeros(STATE_DIM, head.in_features)
+    bias = torch.zeros(STATE_DIM)
+    weight[:len(TARGETS)] = head.weight.detach().cpu()
+    bias[:len(TARGETS)] = head.bias.detach().cpu()
+    state = {f"encoder.{k}": v.detach().cpu() for k, v in encoder.state_dict().items()}
+    state.update({"head.weight": weight, "head.bias": bias, "mean": mean.cpu().clone(),
+                  "std": std.cpu().clone(), "dims": torch.arange(len(TARGETS))})
+    return state
 
 
 def main(argv=None) -> None:
@@ -145,6 +170,9 @@ def main(argv=None) -> None:
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--save-readouts", type=Path, default=None,
+                   help="folder: each fitted readout as readout_<camera>_<images>.pt, for "
+                        "`twist_diagnosis.py readout --readout-file`")
     args = p.parse_args(argv)
     if args.updates < 4 or min(args.train_images) < 1:
         p.error("--updates must be >= 4 and --train-images >= 1")
@@ -177,7 +205,10 @@ def main(argv=None) -> None:
         print(f"camera={camera}: rendered {largest} training images at {fps:.0f} images/s",
               flush=True)
         for n in sorted(args.train_images):
-            rows = fit_probe(images[:n], targets(train_q[:n]), tests, args, device)
+            rows, readout = fit_probe(images[:n], targets(train_q[:n]), tests, args, device)
+            if args.save_readouts:
+                args.save_readouts.mkdir(parents=True, exist_ok=True)
+                torch.save(readout, args.save_readouts / f"readout_{camera}_{n}.pt")
             for row in rows:
                 row.update({"camera": camera, "train_images": n, "device": str(device),
                             "render_fps": round(fps), "test_spread": spread})

@@ -49,3 +49,39 @@ def test_probe_rows_and_json(tmp_path):
             assert len(row[f"rmse_{name}"]) == 3
             assert all(math.isfinite(v) and v >= 0 for v in row[f"rmse_{name}"])
         assert row["camera"] == "none" and row["device"] == "cpu"
+
+
+def _diagnosis():
+    spec = importlib.util.spec_from_file_location(
+        "twist_diagnosis", ROOT / "benchmarks" / "twist_diagnosis.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_saved_readout_loads_as_the_diagnosis_frozen_readout_and_reads_the_same():
+    torch.manual_seed(0)
+    encoder = scale.PixelEncoder(4, norm="layer", input_norm="image").eval()
+    head = torch.nn.Linear(encoder.embed_dim, 3)
+    mean, std = torch.tensor([0.1, 0.9, 0.0]), torch.tensor([0.5, 0.02, 0.2])
+    state = scale.readout_state_dict(encoder, head, mean, std)
+    assert state["head.weight"].shape == (5, encoder.embed_dim)
+    assert torch.equal(state["head.weight"][3:], torch.zeros(2, encoder.embed_dim))
+
+    diagnosis = _diagnosis()
+    fresh = scale.PixelEncoder(4, norm="layer", input_norm="image")
+    readout = diagnosis.StateReadout(fresh, torch.nn.Linear(fresh.embed_dim, 5),
+                                     torch.zeros(5), torch.ones(5), [0, 1, 2])
+    readout.load_state_dict(state)  # strict: every tensor has its place
+    images = torch.randint(0, 256, (3, 64, 64, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        expected = head(encoder(images)) * std + mean
+        assert torch.allclose(readout(images), expected, atol=1e-5)
+
+
+def test_main_saves_one_readout_per_camera_and_size(tmp_path):
+    scale.main(["--train-images", "6", "--updates", "4", "--batch", "4", "--test-images",
+                "6", "--depth", "4", "--save-readouts", str(tmp_path / "ro")])
+    state = torch.load(tmp_path / "ro" / "readout_none_6.pt", weights_only=True)
+    assert set(state) >= {"head.weight", "head.bias", "mean", "std", "dims"}
+    assert state["dims"].tolist() == [0, 1, 2]
