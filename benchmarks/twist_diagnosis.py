@@ -545,11 +545,8 @@ def render_states(task: str, states: torch.Tensor, visual: VisualRandomisation, 
     out = torch.zeros(renders, len(states), 64, 64, 3, dtype=torch.uint8)
     qpos = torch.stack([states[:, 0], torch.atan2(states[:, 2], states[:, 1])], -1).numpy()
     for i, q in enumerate(qpos):
-        sim.physics.data.qpos[:2] = q
-        sim.physics.forward()
-        for r in range(renders):
-            sim._vis_editor.randomise(sim._vis_rng)
-            out[r, i] = torch.from_numpy(sim.render())
+        for r in range(renders):  # a fresh draw of ``visual`` for every render
+            out[r, i] = torch.from_numpy(sim.render_configuration(q))
     env.close()
     return out
 

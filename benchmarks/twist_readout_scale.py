@@ -63,11 +63,8 @@ def _render_chunk(args) -> torch.Tensor:
     sim = env.base_env.sims[0]
     out = torch.empty(len(qpos), 64, 64, 3, dtype=torch.uint8)
     try:
-        for i, q in enumerate(qpos.tolist()):
-            sim.physics.data.qpos[:2] = q
-            sim.physics.forward()
-            sim._vis_editor.randomise(sim._vis_rng)
-            out[i] = torch.from_numpy(sim.render().copy())
+        for i, q in enumerate(qpos.numpy()):
+            out[i] = torch.from_numpy(sim.render_configuration(q))
     finally:
         env.close()
     return out

@@ -162,6 +162,31 @@ class Simulation:
         row["terminated"][0] = False
         row["truncated"][0] = False
 
+    def render_configuration(self, qpos, redraw: bool = True) -> np.ndarray:
+        """Renders the world posed at joint positions ``qpos``, uint8 ``(size, size, 3)``.
+
+        Sets the first ``len(qpos)`` entries of ``physics.data.qpos`` (velocities are left
+        as they are, and no time passes), then, when ``redraw`` and a visual randomisation
+        is set, draws fresh textures, colours, light and camera pose before rendering:
+        images of chosen states, e.g. the training set of a perception model
+        (``benchmarks/twist_readout_scale.py``). The episode's physics is changed: call
+        :meth:`reset` before stepping again.
+
+        Raises:
+            ValueError: ``qpos`` is not a 1-D array of at most ``nq`` finite numbers.
+        """
+        qpos = np.asarray(qpos, dtype=np.float64)
+        nq = self.physics.model.nq
+        if qpos.ndim != 1 or not 1 <= len(qpos) <= nq:
+            raise ValueError(f"qpos must be 1-D with 1 to {nq} entries, got shape {qpos.shape}")
+        if not np.isfinite(qpos).all():
+            raise ValueError(f"qpos must be finite, got {qpos}")
+        self.physics.data.qpos[:len(qpos)] = qpos
+        self.physics.forward()
+        if redraw and self._vis_editor is not None:
+            self._vis_editor.randomise(self._vis_rng)
+        return self.render()
+
     def render(self, size: int | None = None, camera_id: int | None = None) -> np.ndarray:
         """Renders the current frame, uint8 ``(size, size, 3)``."""
         size = size or self.image_size
