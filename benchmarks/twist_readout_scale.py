@@ -55,6 +55,20 @@ def draw_states(n: int, seed: int, max_angle: float, max_cart: float) -> torch.T
     return torch.stack([x, angle], -1)
 
 
+def recorded_states(path: Path, renders: int, seed: int) -> torch.Tensor:
+    """``[N * renders, 2]`` cart positions and pole angles of the recorded cartpole states in
+    ``path`` (a ``[N, 5]`` tensor of ``(x, cos, sin, v, omega)``, e.g. a TWIST run's D),
+    each repeated ``renders`` times (one texture draw per copy), in a seeded random order
+    so that any prefix is a sample of the whole."""
+    states = torch.load(path, weights_only=True)
+    if states.ndim != 2 or states.shape[-1] != 5 or not torch.isfinite(states).all():
+        raise ValueError(f"{path}: expected finite cartpole states [N, 5] (x, cos, sin, v, "
+                         f"omega), got {tuple(states.shape)}")
+    qpos = torch.stack([states[:, 0], torch.atan2(states[:, 2], states[:, 1])], -1)
+    qpos = qpos.repeat(renders, 1)
+    return qpos[torch.randperm(len(qpos), generator=torch.Generator().manual_seed(seed))]
+
+
 def _render_chunk(args) -> torch.Tensor:
     """One worker: ``qpos`` rows rendered once each under a fresh draw of ``visual``."""
     qpos, visual, seed = args
@@ -167,12 +181,18 @@ def main(argv=None) -> None:
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--states-file", type=Path, default=None,
+                   help="train on these recorded cartpole states ([N, 5] tensor, e.g. a TWIST "
+                        "run's D) instead of uniform draws in the balancing region; the test "
+                        "sets stay uniform in the balancing region")
+    p.add_argument("--renders-per-state", type=int, default=1,
+                   help="--states-file: renders of each recorded state, one draw each")
     p.add_argument("--save-readouts", type=Path, default=None,
                    help="folder: each fitted readout as readout_<camera>_<images>.pt, for "
                         "`twist_diagnosis.py readout --readout-file`")
     args = p.parse_args(argv)
-    if args.updates < 4 or min(args.train_images) < 1:
-        p.error("--updates must be >= 4 and --train-images >= 1")
+    if args.updates < 4 or min(args.train_images) < 1 or args.renders_per_state < 1:
+        p.error("--updates must be >= 4, --train-images and --renders-per-state >= 1")
     device = torch.device(args.device)
 
     start = time.perf_counter()
@@ -196,7 +216,13 @@ def main(argv=None) -> None:
         visual = (VisualRandomisation.training() if camera == "none"
                   else VisualRandomisation.training(camera=True, **TRAIN_CAMERA_JITTER))
         t = time.perf_counter()
-        train_q = draw_states(largest, args.seed + 100, args.max_angle, args.max_cart)
+        if args.states_file:  # recorded states (any pole angle), K renders each
+            train_q = recorded_states(args.states_file, args.renders_per_state, args.seed + 100)
+            if largest > len(train_q):
+                p.error(f"--train-images {largest} > {len(train_q)} recorded renders")
+            train_q = train_q[:largest]
+        else:
+            train_q = draw_states(largest, args.seed + 100, args.max_angle, args.max_cart)
         images = render(train_q, visual, args.seed + 200 + (camera == "train"), args.workers)
         fps = largest / (time.perf_counter() - t)
         print(f"camera={camera}: rendered {largest} training images at {fps:.0f} images/s",

@@ -85,3 +85,21 @@ def test_main_saves_one_readout_per_camera_and_size(tmp_path):
     state = torch.load(tmp_path / "ro" / "readout_none_6.pt", weights_only=True)
     assert set(state) >= {"head.weight", "head.bias", "mean", "std", "dims"}
     assert state["dims"].tolist() == [0, 1, 2]
+
+
+def test_recorded_states_become_poses_repeated_per_render(tmp_path):
+    angles = torch.tensor([0.0, 0.5, -2.0])
+    states = torch.stack([torch.tensor([0.1, -0.3, 1.2]), angles.cos(), angles.sin(),
+                          torch.zeros(3), torch.zeros(3)], -1)
+    torch.save(states, tmp_path / "d.pt")
+    q = scale.recorded_states(tmp_path / "d.pt", renders=2, seed=0)
+    assert q.shape == (6, 2)
+    expected = sorted([(0.1, 0.0), (-0.3, 0.5), (1.2, -2.0)] * 2)
+    assert sorted((round(a, 5), round(b, 5)) for a, b in q.tolist()) == expected
+    torch.save(states[:, :3], tmp_path / "bad.pt")
+    try:
+        scale.recorded_states(tmp_path / "bad.pt", 1, 0)
+    except ValueError as err:
+        assert "[N, 5]" in str(err)
+    else:
+        raise AssertionError("a [N, 3] tensor must be refused")
