@@ -103,3 +103,27 @@ def test_recorded_states_become_poses_repeated_per_render(tmp_path):
         assert "[N, 5]" in str(err)
     else:
         raise AssertionError("a [N, 3] tensor must be refused")
+
+
+def test_readings_computed_once_equal_reading_at_every_update():
+    from tensordict import TensorDict
+    diagnosis = _diagnosis()
+    torch.manual_seed(1)
+    encoder = scale.PixelEncoder(4, norm="layer", input_norm="image")
+    readout = diagnosis.StateReadout(encoder, torch.nn.Linear(encoder.embed_dim, 5),
+                                     torch.zeros(5), torch.ones(5), [0, 1, 2])
+    pixels = torch.randint(0, 256, (7, 64, 64, 3), dtype=torch.uint8)
+    episode = TensorDict({"next": {"pixels": pixels, "state": torch.zeros(7, 5)}}, [7])
+    [cached] = diagnosis.read_once(readout, [episode], chunk=3)
+    assert episode["next", "pixels"].dtype == torch.uint8  # the original is untouched
+    both = diagnosis.PrecomputedOrImages(readout)
+    with torch.no_grad():
+        from_images = both(pixels)
+        assert torch.allclose(cached["next", "pixels"], from_images, atol=1e-6)
+        assert torch.equal(both(cached["next", "pixels"]), cached["next", "pixels"])
+    try:
+        both(torch.zeros(2, 4))
+    except ValueError as err:
+        assert "3 values" in str(err)
+    else:
+        raise AssertionError("readings of the wrong width must be refused")
