@@ -229,22 +229,26 @@ def readout_precision(args, cfg, readout: StateReadout, recorded: list) -> dict:
     return out
 
 
-class PrecomputedOrImages(torch.nn.Module):
+class PrecomputedOrImages(StateReadout):
     """A frozen readout that passes readings computed earlier through: uint8 images are read
     by ``readout``, float vectors (its outputs, stored in place of the images) are returned
     as they are. The readout is frozen and its student uses no random shift, so reading D's
     images once gives the same training batches as reading them at every update, at a
-    fraction of the cost (``--cache-readout``)."""
+    fraction of the cost (``--cache-readout``). Same parameters and state-dict keys as
+    ``readout``, so a student's checkpoint resumes with or without the cache."""
 
     def __init__(self, readout: StateReadout):
-        super().__init__()
-        self.readout = readout
+        torch.nn.Module.__init__(self)
+        self.encoder, self.head = readout.encoder, readout.head
+        for name in ("mean", "std", "dims"):
+            self.register_buffer(name, getattr(readout, name))
+        self.requires_grad_(False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.dtype == torch.uint8:
-            return self.readout(x)
-        if x.shape[-1] != len(self.readout.dims):
-            raise ValueError(f"precomputed readings must have {len(self.readout.dims)} "
+            return super().forward(x)
+        if x.shape[-1] != len(self.dims):
+            raise ValueError(f"precomputed readings must have {len(self.dims)} "
                              f"values, got shape {tuple(x.shape)}")
         return x
 

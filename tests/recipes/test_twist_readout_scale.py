@@ -121,6 +121,7 @@ def test_readings_computed_once_equal_reading_at_every_update():
         from_images = both(pixels)
         assert torch.allclose(cached["next", "pixels"], from_images, atol=1e-6)
         assert torch.equal(both(cached["next", "pixels"]), cached["next", "pixels"])
+    assert both.state_dict().keys() == readout.state_dict().keys()  # checkpoints resume
     try:
         both(torch.zeros(2, 4))
     except ValueError as err:
