@@ -21,7 +21,7 @@ Rendering runs in ``--workers`` processes (one MuJoCo context each); training ru
     python benchmarks/twist_readout_scale.py --device cuda --workers 14 \\
         --train-images 4000 16000 64000 --camera none train --updates 6000 --json scale.json
     # keep the fitted readouts for a student (twist_diagnosis.py readout --readout-file)
-    python benchmarks/twist_readout_scale.py --device cuda --workers 15 --train-images 16000 \
+    python benchmarks/twist_readout_scale.py --device cuda --workers 15 --train-images 16000 \\
         --camera train --updates 6000 --save-readouts readouts/
     # a quick look on the CPU
     python benchmarks/twist_readout_scale.py --train-images 2000 --updates 300 --test-images 500
