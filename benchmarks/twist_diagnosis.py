@@ -122,7 +122,7 @@ from simdist.recipes import twist_dmc as recipe  # (config and stage helpers)
 from simdist.agents import DreamerPolicy, TwistStudent
 from simdist.envs import VisualRandomisation
 from simdist.modules import (DreamerWorldModel, PixelEncoder, RandomRotate,
-                             RandomShift)
+                             RandomShift, StateReadout)
 from simdist.pipelines import (EpisodeReplay, control_env, evaluate_returns,
                                load_episodes, mean_metrics, train_resumable)
 from simdist.pipelines.locomotion import rollout
@@ -146,27 +146,6 @@ class SelectDims(torch.nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x.index_select(-1, self.dims)
-
-
-class StateReadout(torch.nn.Module):
-    """A frozen image -> state regressor (a CNN and a linear head trained supervised on
-    standardised states) that returns the state dimensions ``dims`` in the state's units."""
-
-    def __init__(self, encoder: torch.nn.Module, head: torch.nn.Module, mean: torch.Tensor,
-                 std: torch.Tensor, dims: list[int]):
-        super().__init__()
-        self.encoder, self.head = encoder.eval(), head
-        self.register_buffer("mean", mean[dims].clone())
-        self.register_buffer("std", std[dims].clone())
-        self.register_buffer("dims", torch.tensor(dims))
-        self.requires_grad_(False)
-
-    def train(self, mode: bool = True):  # stays in evaluation mode: it is frozen
-        return super().train(False)
-
-    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
-        out = self.head(self.encoder(pixels)).index_select(-1, self.dims)
-        return out * self.std + self.mean
 
 
 def train_readout(args, cfg, episodes: list) -> StateReadout:
@@ -201,7 +180,10 @@ def train_readout(args, cfg, episodes: list) -> StateReadout:
             print(json.dumps({"variant": "readout", "readout_updates": step,
                               "loss": round(loss.item(), 3), "images": len(pixels),
                               "seconds": round(time.perf_counter() - start, 1)}), flush=True)
-    return StateReadout(encoder, head, mean, std, args.positions)
+    readout = StateReadout(encoder, states.shape[-1], args.positions,
+                           mean[args.positions], std[args.positions])
+    readout.head.load_state_dict(head.state_dict())
+    return readout
 
 
 def readout_precision(args, cfg, readout: StateReadout, recorded: list) -> dict:
@@ -229,42 +211,16 @@ def readout_precision(args, cfg, readout: StateReadout, recorded: list) -> dict:
     return out
 
 
-class PrecomputedOrImages(StateReadout):
-    """A frozen readout that passes readings computed earlier through: uint8 images are read
-    by ``readout``, float vectors (its outputs, stored in place of the images) are returned
-    as they are. The readout is frozen and its student uses no random shift, so reading D's
-    images once gives the same training batches as reading them at every update, at a
-    fraction of the cost (``--cache-readout``). Same parameters and state-dict keys as
-    ``readout``, so a student's checkpoint resumes with or without the cache."""
-
-    def __init__(self, readout: StateReadout):
-        torch.nn.Module.__init__(self)
-        self.encoder, self.head = readout.encoder, readout.head
-        for name in ("mean", "std", "dims"):
-            self.register_buffer(name, getattr(readout, name))
-        self.requires_grad_(False)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if x.dtype == torch.uint8:
-            return super().forward(x)
-        if x.shape[-1] != len(self.dims):
-            raise ValueError(f"precomputed readings must have {len(self.dims)} "
-                             f"values, got shape {tuple(x.shape)}")
-        return x
-
-
-def read_once(readout: StateReadout, episodes: list, chunk: int = 500) -> list:
-    """Copies of ``episodes`` whose ("next", "pixels") are the readout's readings of them."""
+def read_once(readout: StateReadout, episodes: list) -> list:
+    """Copies of ``episodes`` whose ("next", "pixels") are the readout's readings of them
+    (``--cache-readout``: the readout is frozen and its student uses no random shift, so
+    the training batches are the same as reading the images at every update)."""
     out = []
-    with torch.no_grad():
-        for episode in episodes:
-            pixels = episode["next", "pixels"]
-            readings = torch.cat([readout(pixels[i:i + chunk])
-                                  for i in range(0, len(pixels), chunk)])
-            copy = episode.clone(recurse=False)
-            copy["next"] = episode["next"].clone(recurse=False)
-            copy["next", "pixels"] = readings
-            out.append(copy)
+    for episode in episodes:
+        copy = episode.clone(recurse=False)
+        copy["next"] = episode["next"].clone(recurse=False)
+        copy["next", "pixels"] = readout.read(episode["next", "pixels"])
+        out.append(copy)
     return out
 
 
@@ -371,11 +327,11 @@ def distil(args, cfg, teacher_result: dict) -> None:
         path = args.readout_file or stage / "readout.pt"
         if args.readout_file and not path.exists():
             raise FileNotFoundError(f"--readout-file {path} does not exist")
-        if path.exists():
+        if args.readout_file:  # a readout saved by StateReadout.save (.pt and .json)
+            readout = StateReadout.load(path)
+        elif path.exists():
             n_state = recorded[0]["next", "state"].shape[-1]
-            encoder = probe_encoder(args, cfg)
-            readout = StateReadout(encoder, torch.nn.Linear(encoder.embed_dim, n_state),
-                                   torch.zeros(n_state), torch.ones(n_state), args.positions)
+            readout = StateReadout(probe_encoder(args, cfg), n_state, args.positions)
             readout.load_state_dict(torch.load(path, weights_only=True))
         else:
             readout = train_readout(args, cfg, train_episodes)
@@ -386,8 +342,7 @@ def distil(args, cfg, teacher_result: dict) -> None:
     replay_episodes = train_episodes
     if readout is not None and args.cache_readout:
         start = time.perf_counter()
-        replay_episodes = read_once(readout, train_episodes)
-        readout = PrecomputedOrImages(readout)
+        replay_episodes = read_once(readout, train_episodes)  # readings pass through
         print(f"read {sum(len(e) for e in train_episodes)} training images once in "
               f"{time.perf_counter() - start:.0f} s", flush=True)
     for episode in replay_episodes:

@@ -13,6 +13,10 @@ pose draw per image, 1.5x the evaluation's widths), a fresh copy of the student'
 ``(x, cos, sin)`` for ``--updates`` updates per training-set size, and the RMSE in state
 units measured on fresh states rendered three ways: the training randomisation, the
 evaluation's held-out textures without and with its camera jitter (drawn per image).
+``--save-readouts DIR`` keeps each fitted readout as a :class:`StateReadout` file (weights
+and a ``.json`` with its domain, command and precision): the committed
+``src/simdist/checkpoints/twist_readout/cartpole-balance.pt`` that ``recipes/twist_dmc.py``
+uses is the 64000-image readout of the second command below.
 
 Rendering runs in ``--workers`` processes (one MuJoCo context each); training runs on
 ``--device``. Every finished probe is appended to ``--json`` at once.
@@ -20,9 +24,11 @@ Rendering runs in ``--workers`` processes (one MuJoCo context each); training ru
     # the curve on a GPU machine (~6 min on one H200 with 14 render workers)
     python benchmarks/twist_readout_scale.py --device cuda --workers 14 \\
         --train-images 4000 16000 64000 --camera none train --updates 6000 --json scale.json
-    # keep the fitted readouts for a student (twist_diagnosis.py readout --readout-file)
-    python benchmarks/twist_readout_scale.py --device cuda --workers 15 --train-images 16000 \\
-        --camera train --updates 6000 --save-readouts readouts/
+    # the committed readout (~6 min on one H200; copy RO/readout_train_64000.{pt,json} to
+    # src/simdist/checkpoints/twist_readout/cartpole-balance.{pt,json})
+    python benchmarks/twist_readout_scale.py --device cuda --workers 15 \\
+        --train-images 16000 64000 --camera train --updates 24000 --test-images 4000 \\
+        --save-readouts RO
     # a quick look on the CPU
     python benchmarks/twist_readout_scale.py --train-images 2000 --updates 300 --test-images 500
 """
@@ -30,9 +36,11 @@ Rendering runs in ``--workers`` processes (one MuJoCo context each); training ru
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import multiprocessing as mp
+import sys
 import time
 from pathlib import Path
 
@@ -40,7 +48,7 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
 
 from simdist.envs import VisualRandomisation
-from simdist.modules import PixelEncoder, RandomShift
+from simdist.modules import PixelEncoder, RandomShift, StateReadout
 from simdist.recipes.twist_dmc import TRAIN_CAMERA_JITTER
 
 TASK = "cartpole-balance"
@@ -100,10 +108,10 @@ def targets(qpos: torch.Tensor) -> torch.Tensor:
 
 
 def fit_probe(images: torch.Tensor, y: torch.Tensor, tests: dict, args,
-              device) -> tuple[list[dict], dict]:
+              device) -> tuple[list[dict], StateReadout]:
     """Fits the student's CNN + a linear head to standardised ``y``; RMSE per test set
-    at each quarter of ``args.updates``, and the fitted readout as a CPU state dict in
-    ``benchmarks/twist_diagnosis.StateReadout``'s layout (see ``readout_state_dict``)."""
+    at each quarter of ``args.updates``, and the fitted readout, frozen on the CPU
+    (:func:`fitted_readout`)."""
     torch.manual_seed(args.seed)
     encoder = PixelEncoder(args.depth, norm="layer", input_norm="image").to(device)
     head = torch.nn.Linear(encoder.embed_dim, y.shape[-1]).to(device)
@@ -141,27 +149,33 @@ def fit_probe(images: torch.Tensor, y: torch.Tensor, tests: dict, args,
             for name, (x_img, x_y) in tests.items():
                 row[f"rmse_{name}"] = rmse(x_img, x_y)
             rows.append(row)
-    return rows, readout_state_dict(encoder, head, mean, std)
+    domain = None if args.states_file else balancing_domain(args.max_angle, args.max_cart)
+    return rows, fitted_readout(encoder, head, mean, std, domain)
 
 
 #: cartpole's state dimensions (x, cos, sin, v, omega): a readout predicts the first three
 STATE_DIM = 5
 
 
-def readout_state_dict(encoder: torch.nn.Module, head: torch.nn.Linear, mean: torch.Tensor,
-                       std: torch.Tensor) -> dict:
-    """The fitted ``(x, cos, sin)`` readout in the layout of ``twist_diagnosis``'s frozen
-    ``StateReadout`` (a head over all five state dimensions, of which it reads the first
-    three), so that ``twist_diagnosis.py readout --readout-file F`` trains a student on it.
-    The two velocity rows are zero: a single image does not show them."""
-    weight = torch.zeros(STATE_DIM, head.in_features)
-    bias = torch.zeros(STATE_DIM)
-    weight[:len(TARGETS)] = head.weight.detach().cpu()
-    bias[:len(TARGETS)] = head.bias.detach().cpu()
-    state = {f"encoder.{k}": v.detach().cpu() for k, v in encoder.state_dict().items()}
-    state.update({"head.weight": weight, "head.bias": bias, "mean": mean.cpu().clone(),
-                  "std": std.cpu().clone(), "dims": torch.arange(len(TARGETS))})
-    return state
+def balancing_domain(max_angle: float, max_cart: float) -> tuple[list[float], list[float]]:
+    """The box of ``(x, cos, sin)`` that poses drawn by :func:`draw_states` fill."""
+    return ([-max_cart, math.cos(max_angle), -math.sin(max_angle)],
+            [max_cart, 1.0, math.sin(max_angle)])
+
+
+def fitted_readout(encoder: PixelEncoder, head: torch.nn.Linear, mean: torch.Tensor,
+                   std: torch.Tensor, domain=None) -> StateReadout:
+    """The fitted ``(x, cos, sin)`` probe as a frozen CPU :class:`StateReadout` over
+    cartpole's five state dimensions, of which it reads the first three (the velocity rows
+    of its head are zero: a single image does not show them)."""
+    readout = StateReadout(copy.deepcopy(encoder).cpu(), STATE_DIM, list(range(len(TARGETS))),
+                           mean.cpu(), std.cpu(), domain)
+    with torch.no_grad():
+        readout.head.weight.zero_()
+        readout.head.bias.zero_()
+        readout.head.weight[:len(TARGETS)] = head.weight.detach().cpu()
+        readout.head.bias[:len(TARGETS)] = head.bias.detach().cpu()
+    return readout
 
 
 def main(argv=None) -> None:
@@ -229,9 +243,15 @@ def main(argv=None) -> None:
               flush=True)
         for n in sorted(args.train_images):
             rows, readout = fit_probe(images[:n], targets(train_q[:n]), tests, args, device)
-            if args.save_readouts:
-                args.save_readouts.mkdir(parents=True, exist_ok=True)
-                torch.save(readout, args.save_readouts / f"readout_{camera}_{n}.pt")
+            if args.save_readouts:  # what recipes/twist_dmc.py's student_readout reads
+                readout.save(args.save_readouts / f"readout_{camera}_{n}.pt", meta={
+                    "task": TASK, "camera_id": None, "train_images": n,
+                    "updates": args.updates, "camera_draws": camera == "train",
+                    "command": "python benchmarks/twist_readout_scale.py " + " ".join(
+                        sys.argv[1:] if argv is None else argv),
+                    "rmse_x_cos_sin": {k: v for k, v in rows[-1].items()
+                                       if k.startswith("rmse_")},
+                    "test_spread_x_cos_sin": spread})
             for row in rows:
                 row.update({"camera": camera, "train_images": n, "device": str(device),
                             "render_fps": round(fps), "test_spread": spread})

@@ -49,6 +49,12 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                           "student.pt", weights_only=True)
     assert "loss_imagined" not in ablation["history"][-1]
     assert "% of Oracle" in proc.stdout and "TWIST (student)" in proc.stdout
+    # cartpole-balance has a committed readout: the student and its ablations see through it
+    for name in ("TWIST (student)", "TWIST w/o imagined alignment", "TWIST w/o action noise"):
+        assert run[name]["student"] == "readout" and run[name]["updates"] == 3
+        assert run[name]["readout"].endswith("twist_readout/cartpole-balance.pt")
+    assert load_agent(tmp_path / "stages" / "cartpole-balance_s0_twist" /
+                      "student_agent.pt").student.encoder.readout.out_dim == 3
     assert (tmp_path / "returns.png").stat().st_size > 0
     paths = entity_paths(str(tmp_path / "rerun_student.rrd"))
     assert "/student/view" in paths and "/latent/belief_distance" in paths
@@ -408,3 +414,77 @@ def test_teacher_actor_noise_reaches_only_the_teachers_actor_critic():
     assert recipe.teacher_agent(cfg, "cartpole-balance").behaviour_loss.actor_input_noise == 0.3
     # the pixel Dreamers are baselines, not teachers: they keep DreamerV2's actor
     assert cfg.dreamer().actor_input_noise == 0.0
+
+
+def test_student_readout_picks_the_committed_readout_only_where_it_fits(tmp_path):
+    import dataclasses
+    import json
+
+    import pytest
+
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    committed = recipe.READOUT_DIR / "cartpole-balance.pt"
+    cfg = recipe.Config()
+    assert recipe.readout_file(cfg, "cartpole-balance") == committed
+    assert recipe.readout_file(cfg, "cheetah-run") is None  # no readout: the CNN student
+    # fitted from the task's camera: a run from another camera gets the CNN student
+    assert recipe.readout_file(dataclasses.replace(cfg, camera_id=1), "cartpole-balance") is None
+    none = dataclasses.replace(cfg, student_readout="none")
+    assert recipe.readout_file(none, "cartpole-balance") is None
+    # an explicit file fitted for another task is refused, not silently used
+    meta = json.loads(committed.with_suffix(".json").read_text())
+    other = tmp_path / "other.pt"
+    recipe.StateReadout.load(committed).save(other, {**meta, "task": "cheetah-run"})
+    explicit = dataclasses.replace(cfg, student_readout=str(other))
+    assert recipe.readout_file(explicit, "cheetah-run") == other
+    with pytest.raises(ValueError, match="fitted for task 'cheetah-run'"):
+        recipe.readout_file(explicit, "cartpole-balance")
+    with pytest.raises(ConfigError, match="student_readout: must be 'auto', 'none' or a readout"):
+        recipe.Config(student_readout=str(tmp_path / "absent.pt"))
+
+
+def test_readout_training_runs_keep_long_runs_inside_the_domain_as_readings():
+    import math
+
+    from tensordict import TensorDict
+
+    recipe = _recipe_module()
+    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    # 12 steps: upright for 5, the pole past 0.3 rad for 2, upright for 3, cart at 1.5 m
+    # for 2; runs of >= 3 steps: steps 0-4 and 7-9
+    angle = torch.tensor([0.0] * 5 + [0.5] * 2 + [0.1] * 3 + [0.0] * 2)
+    x = torch.tensor([0.0] * 10 + [1.5] * 2)
+    state = torch.stack([x, angle.cos(), angle.sin(), torch.zeros(12), torch.zeros(12)], -1)
+    pixels = torch.randint(0, 256, (12, 64, 64, 3), dtype=torch.uint8)
+    episode = TensorDict({"action": torch.arange(12.0).unsqueeze(-1),
+                          "next": {"state": state, "pixels": pixels}}, [12])
+    runs = recipe.readout_training_runs([episode], readout, min_len=3)
+    assert [r["action"].flatten().tolist() for r in runs] == [[0, 1, 2, 3, 4], [7, 8, 9]]
+    assert torch.allclose(runs[1]["next", "pixels"], readout.read(pixels[7:10]))
+    assert episode["next", "pixels"].dtype == torch.uint8  # the caller's data is untouched
+    assert math.isclose(recipe.readout_training_runs([episode], readout, 6).__len__(), 0)
+
+
+def test_committed_cartpole_readout_reads_rendered_poses():
+    """The committed artefact, on fresh renders under TWIST's training randomisation:
+    fitted to ~.01 on the pole's sine and ~.04 m on the cart (its .json), so it must read
+    these poses to a few hundredths."""
+    from simdist.envs import VisualRandomisation
+    from simdist.pipelines import control_env
+
+    recipe = _recipe_module()
+    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    poses = torch.tensor([[0.0, 0.0], [0.5, 0.2], [-0.7, -0.25], [0.3, -0.1], [-0.2, 0.1],
+                          [0.8, 0.05]])
+    env = control_env("cartpole-balance", 3, pixels=True, visual=VisualRandomisation.training())
+    try:
+        sim = env.base_env.sims[0]
+        images = torch.stack([torch.from_numpy(sim.render_configuration(q))
+                              for q in poses.numpy()])
+    finally:
+        env.close()
+    readings = readout.read(images)
+    assert (readings[:, 0] - poses[:, 0]).abs().max() < 0.15
+    assert (readings[:, 2] - poses[:, 1].sin()).abs().max() < 0.05

@@ -13,6 +13,7 @@ from __future__ import annotations
 from torch import nn
 
 from simdist.modules import (RSSM, DreamerWorldModel, MLPDynamics, PixelDecoder, PixelEncoder,
+                             ReadoutEncoder, StateReadout,
                              ScalarHead, SimDistWorldModel, StateDecoder, StateEncoder)
 
 
@@ -89,7 +90,11 @@ def _describe_encoder(encoder: nn.Module) -> dict:
             desc.update(arch=encoder.arch, keypoints=int(encoder.keypoints),
                         depth=int(encoder.net[0].out_channels) // 2)
         return desc
-    raise TypeError(f"the checkpoint format describes StateEncoder and PixelEncoder, got "
+    if isinstance(encoder, ReadoutEncoder):  # a frozen readout before a state encoder
+        return {"kind": "readout", "readout": encoder.readout.describe(),
+                "state": _describe_encoder(encoder.encoder)}
+    raise TypeError(f"the checkpoint format describes StateEncoder, PixelEncoder and "
+                    f"ReadoutEncoder, got "
                     f"{type(encoder).__name__}")
 
 
@@ -99,6 +104,9 @@ def _build_encoder(desc: dict) -> nn.Module:
     if desc["kind"] == "pixels":
         return PixelEncoder(desc["depth"], desc["image_size"], desc["norm"], desc["input_norm"],
                             desc.get("arch", "dreamer"), desc.get("keypoints", 32))
+    if desc["kind"] == "readout":
+        return ReadoutEncoder(StateReadout.from_description(desc["readout"]),
+                              _build_encoder(desc["state"]))
     raise ValueError(f"unknown encoder kind {desc['kind']!r}")
 
 

@@ -144,6 +144,17 @@ class TwistStudent(ckpt_format.LoadableAgent):
         move_to_device([self.student], [self.optim], device)
         return self
 
+    def start_from_teacher_rssm(self) -> int:
+        """Copies into the student's RSSM every teacher RSSM tensor of the same name and
+        shape (all of them when the embeddings match, e.g. a readout student's); returns
+        how many. Not in TWIST, which starts the student from scratch: a student whose
+        encoder gives the teacher's kind of embedding starts with the teacher's dynamics."""
+        own = self.student.rssm.state_dict()
+        same = {k: v for k, v in self.teacher.world_model.rssm.state_dict().items()
+                if k in own and own[k].shape == v.shape}
+        self.student.rssm.load_state_dict(same, strict=False)
+        return len(same)
+
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One student step on ``L_distil (+ L_imagined)``; teacher parameters never move."""
         batch = batch.to(self.device)

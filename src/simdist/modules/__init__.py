@@ -7,6 +7,7 @@ from simdist.modules.ensemble import WorldModelEnsemble
 from simdist.modules.heads import Actor, PixelDecoder, PolicyPrior, ScalarHead, StateDecoder
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.modules.rssm import RSSM, RSSMState
+from simdist.modules.state_readout import ReadoutEncoder, StateReadout
 from simdist.modules.simdist_model import SIMDIST_SIZES, MLPDynamics, SimDistWorldModel
 from simdist.modules.world_model import RSSM_SIZES, DreamerWorldModel
 
@@ -14,4 +15,5 @@ __all__ = ["RandomShift", "RandomRotate", "ChannelLayerNorm", "HistoryEncoder", 
            "simnorm", "Actor", "PixelDecoder",
            "PolicyPrior", "ScalarHead", "StateDecoder", "RSSM", "RSSMState", "SIMDIST_SIZES",
            "MLPDynamics", "SimDistWorldModel", "RSSM_SIZES", "DreamerWorldModel",
-           "LatentMPPIPlanner", "PlannerConfig", "WorldModelEnsemble"]
+           "LatentMPPIPlanner", "PlannerConfig", "WorldModelEnsemble", "StateReadout",
+           "ReadoutEncoder"]

@@ -14,6 +14,7 @@ from torch import nn
 from simdist.modules.encoders import PixelEncoder, StateEncoder
 from simdist.modules.heads import PixelDecoder, ScalarHead, StateDecoder
 from simdist.modules.rssm import RSSM, RSSMState
+from simdist.modules.state_readout import ReadoutEncoder, StateReadout
 
 # Model sizes, TD-MPC2 style: one table, named rows.
 RSSM_SIZES = {
@@ -87,6 +88,20 @@ class DreamerWorldModel(nn.Module):
         s = _size(size)
         encoder = PixelEncoder(depth=depth or s["depth"], norm=norm, input_norm=input_norm,
                                arch=arch, keypoints=max(1, s["embed"] // 2))
+        rssm = RSSM(encoder.embed_dim, action_dim, s["deter_dim"], s["stoch"], s["classes"],
+                    s["hidden_dim"])
+        return cls(encoder, rssm)
+
+    @classmethod
+    def readout_student(cls, readout: StateReadout, action_dim: int,
+                        size: str = "small") -> DreamerWorldModel:
+        """A TWIST student that sees through a frozen :class:`StateReadout`: pixels ->
+        readout -> the teacher's kind of state encoder (of the read dimensions) -> RSSM;
+        no heads. Only the state encoder and the RSSM learn.
+        """
+        s = _size(size)
+        encoder = ReadoutEncoder(readout, StateEncoder(readout.out_dim, s["embed"], s["embed"],
+                                                       layers=3))
         rssm = RSSM(encoder.embed_dim, action_dim, s["deter_dim"], s["stoch"], s["classes"],
                     s["hidden_dim"])
         return cls(encoder, rssm)

@@ -1,0 +1,199 @@
+"""A frozen image -> state sensor, and the encoder that puts it in front of a student RSSM.
+
+A TWIST student whose CNN learns only from the teacher's latents reads the cartpole's pole
+too coarsely to balance it (docs/methods.md, section 2.7). :class:`StateReadout` is a CNN
+and a linear head fitted *supervised* to the privileged positions of many domain-randomised
+renders (``benchmarks/twist_readout_scale.py``), then frozen; :class:`ReadoutEncoder`
+feeds its readings to a trainable state encoder, so that the student RSSM learns the
+velocities and the teacher's latent from the readings, as a state student would.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from simdist.modules.checks import check_last_dims
+from simdist.modules.encoders import PixelEncoder, StateEncoder
+
+
+class StateReadout(nn.Module):
+    """Frozen CNN + linear head: a 64x64 image -> some state dimensions, in the state's units.
+
+    The head predicts all ``state_dim`` standardised dimensions (the ones one image cannot
+    show, e.g. velocities, are zero rows); ``dims`` picks what the readout returns. Its
+    ``domain`` is the box of those dimensions it was fitted on: outside it, its readings
+    are extrapolations (:meth:`covers`).
+
+    The module is frozen (no gradient, always in evaluation mode). It reads ``uint8``
+    images ``[..., 64, 64, 3]``; a floating tensor ``[..., len(dims)]`` is taken as
+    readings computed earlier by :meth:`read` and passed through, so that a student can
+    train on readings computed once (the readout is frozen, so they are the same).
+
+    Args:
+        encoder: the CNN (a :class:`~simdist.modules.PixelEncoder`).
+        state_dim: the size of the state the head predicts.
+        dims: the state dimensions returned.
+        mean, std: the standardisation of those dimensions (``[len(dims)]``).
+        domain: ``(low, high)`` per returned dimension, the fitted region; ``None``: all.
+
+    Examples:
+        >>> readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
+        >>> images = torch.zeros(2, 7, 64, 64, 3, dtype=torch.uint8)
+        >>> readout(images).shape
+        torch.Size([2, 7, 3])
+        >>> torch.equal(readout(readout(images)), readout(images))  # readings pass through
+        True
+        >>> any(p.requires_grad for p in readout.parameters())
+        False
+    """
+
+    def __init__(self, encoder: PixelEncoder, state_dim: int, dims: list[int],
+                 mean: torch.Tensor | None = None, std: torch.Tensor | None = None,
+                 domain: tuple[list[float], list[float]] | None = None):
+        super().__init__()
+        dims = [int(d) for d in dims]
+        if not dims or len(set(dims)) != len(dims) or not all(0 <= d < state_dim for d in dims):
+            raise ValueError(f"dims must be distinct indices in [0, {state_dim}), got {dims}")
+        self.encoder = encoder
+        self.head = nn.Linear(encoder.embed_dim, state_dim)
+        self.state_dim = state_dim
+        n = len(dims)
+        self.register_buffer("mean", torch.zeros(n) if mean is None else mean.float().clone())
+        self.register_buffer("std", torch.ones(n) if std is None else std.float().clone())
+        self.register_buffer("dims", torch.tensor(dims))
+        for name in ("mean", "std"):
+            check_last_dims(name, getattr(self, name), (n,))
+        if domain is not None:
+            low, high = (list(map(float, side)) for side in domain)
+            if len(low) != n or len(high) != n or any(lo >= hi for lo, hi in zip(low, high)):
+                raise ValueError(f"domain must be (low, high) with {n} values each and "
+                                 f"low < high, got {domain}")
+            domain = (low, high)
+        self.domain = domain
+        self.requires_grad_(False)
+        self.eval()
+
+    @property
+    def out_dim(self) -> int:
+        return len(self.dims)
+
+    def train(self, mode: bool = True) -> StateReadout:
+        return super().train(False)  # frozen: stays in evaluation mode
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.dtype == torch.uint8:
+            check_last_dims("pixels", x, (64, 64, 3))
+            batch = x.shape[:-3]
+            out = self.head(self.encoder(x.reshape(-1, *x.shape[-3:])))
+            out = out.index_select(-1, self.dims) * self.std + self.mean
+            return out.reshape(*batch, self.out_dim)
+        if not x.is_floating_point() or x.shape[-1] != self.out_dim:
+            raise ValueError(f"StateReadout reads uint8 images [..., 64, 64, 3] or passes "
+                             f"precomputed readings [..., {self.out_dim}]; got "
+                             f"{x.dtype} {tuple(x.shape)}")
+        return x
+
+    @torch.no_grad()
+    def read(self, pixels: torch.Tensor, chunk: int = 500) -> torch.Tensor:
+        """The readings of ``pixels`` ``[N, 64, 64, 3]`` (uint8), ``chunk`` images at a time."""
+        if pixels.dtype != torch.uint8 or pixels.ndim != 4:
+            raise ValueError(f"read expects uint8 images [N, 64, 64, 3], got "
+                             f"{pixels.dtype} {tuple(pixels.shape)}")
+        device = self.mean.device
+        return torch.cat([self(pixels[i:i + chunk].to(device)).cpu()
+                          for i in range(0, len(pixels), chunk)])
+
+    def covers(self, state: torch.Tensor) -> torch.Tensor:
+        """Mask ``[...]`` of the states ``[..., state_dim]`` inside the fitted domain."""
+        check_last_dims("state", state, (self.state_dim,))
+        if self.domain is None:
+            return torch.ones(state.shape[:-1], dtype=torch.bool, device=state.device)
+        values = state.index_select(-1, self.dims.to(state.device))
+        low = torch.tensor(self.domain[0], device=state.device)
+        high = torch.tensor(self.domain[1], device=state.device)
+        return ((values >= low) & (values <= high)).all(-1)
+
+    def describe(self) -> dict:
+        """Plain data that rebuilds this readout (untrained) with :meth:`from_description`."""
+        enc = self.encoder
+        return {"depth": int(enc.net[0].out_channels), "norm": enc.norm,
+                "input_norm": enc.input_norm, "state_dim": int(self.state_dim),
+                "dims": self.dims.tolist(),
+                "domain": None if self.domain is None else [list(s) for s in self.domain]}
+
+    @classmethod
+    def from_description(cls, desc: dict) -> StateReadout:
+        try:
+            encoder = PixelEncoder(desc["depth"], norm=desc["norm"], input_norm=desc["input_norm"])
+            return cls(encoder, desc["state_dim"], desc["dims"], domain=desc.get("domain"))
+        except (KeyError, TypeError) as e:
+            raise ValueError(f"not a StateReadout description ({e!r}): {desc}") from None
+
+    def save(self, path: str | os.PathLike, meta: dict | None = None) -> Path:
+        """Writes the weights to ``path`` and the description (+ ``meta``) beside it as
+        ``path`` with a ``.json`` suffix."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save(self.state_dict(), tmp)
+        os.replace(tmp, path)
+        path.with_suffix(".json").write_text(
+            json.dumps({**(meta or {}), "readout": self.describe()}, indent=1) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> StateReadout:
+        """A readout written by :meth:`save` (weights only: no pickled code runs)."""
+        path = Path(path)
+        sidecar = path.with_suffix(".json")
+        for p in (path, sidecar):
+            if not p.exists():
+                raise FileNotFoundError(f"no readout file {p} (a readout is a .pt of weights "
+                                        f"and a .json description beside it)")
+        desc = json.loads(sidecar.read_text())
+        if "readout" not in desc:
+            raise ValueError(f"{sidecar} has no 'readout' description")
+        readout = cls.from_description(desc["readout"])
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        try:
+            readout.load_state_dict(state)
+        except RuntimeError as e:
+            raise ValueError(f"{path} does not match its description {sidecar}: {e}") from None
+        for name, value in state.items():
+            if value.is_floating_point() and not torch.isfinite(value).all():
+                raise ValueError(f"{path}: {name} holds NaN or inf")
+        return readout
+
+
+class ReadoutEncoder(nn.Module):
+    """Pixels -> frozen :class:`StateReadout` -> trainable :class:`StateEncoder`.
+
+    The encoder of a "readout student": its RSSM sees an embedding of a few read state
+    dimensions, as a state student's sees the state. Training batches may hold the
+    readout's readings instead of images (:meth:`StateReadout.read`).
+
+    Examples:
+        >>> readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
+        >>> encoder = ReadoutEncoder(readout, StateEncoder(3, embed_dim=16, hidden=16))
+        >>> encoder(torch.zeros(4, 64, 64, 3, dtype=torch.uint8)).shape
+        torch.Size([4, 16])
+        >>> sum(p.numel() for p in encoder.parameters() if p.requires_grad) == sum(
+        ...     p.numel() for p in encoder.encoder.parameters())
+        True
+    """
+
+    def __init__(self, readout: StateReadout, encoder: StateEncoder):
+        super().__init__()
+        if encoder.state_dim != readout.out_dim:
+            raise ValueError(f"the state encoder reads {encoder.state_dim} values, the "
+                             f"readout gives {readout.out_dim}")
+        self.readout, self.encoder = readout, encoder
+        self.embed_dim = encoder.embed_dim
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.encoder(self.readout(x))
