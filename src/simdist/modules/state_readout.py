@@ -38,7 +38,8 @@ class StateReadout(nn.Module):
         encoder: the CNN (a :class:`~simdist.modules.PixelEncoder`).
         state_dim: the size of the state the head predicts.
         dims: the state dimensions returned.
-        mean, std: the standardisation of those dimensions (``[len(dims)]``).
+        mean: the standardisation's mean of those dimensions (``[len(dims)]``).
+        std: its standard deviation (``[len(dims)]``).
         domain: ``(low, high)`` per returned dimension, the fitted region; ``None``: all.
 
     Examples:

@@ -11,7 +11,10 @@ finished stages and a killed stage resumes from its last checkpoint):
 3. ``twist`` and its ablations (``no_imagined``, ``no_noise``): an image RSSM trained
    with the teacher frozen on slices of ``D`` with latent distillation (Eq. 3) plus
    imagined-rollout alignment (Eq. 4); deployed as pixels -> student latent -> the
-   teacher's actor.
+   teacher's actor. Where the task has a committed readout (cartpole-balance), all three
+   see through it: a frozen CNN fitted supervised to read the positions from one
+   randomised image, before a state encoder and an RSSM started as the teacher's
+   (``student_readout``; docs/methods.md, section 2.7); elsewhere a CNN student.
 4. ``dreamer_dr`` / ``dreamer_no_dr``: Dreamer from pixels, with and without visual DR,
    with the same environment-step budget as the teacher (at the CPU default with fewer
    updates: a pixel update costs ~4x a state update; ``paper`` gives all the same ratio).
