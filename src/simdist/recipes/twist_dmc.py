@@ -31,7 +31,7 @@ Dreamer is a chain of its own. ``--jobs 2`` (the default on two or more cores) r
 chains side by side in two processes, one torch thread each.
 
 Usage:
-    python recipes/twist_dmc.py                    # cartpole-balance, 2 cores: teacher chain ~45 min
+    python recipes/twist_dmc.py                    # cartpole-balance: ~45 min per seed
     python recipes/twist_dmc.py --preset tiny      # seconds, used by the tests
     python recipes/twist_dmc.py --preset paper --device cuda   # six tasks x 3 seeds, 500K steps
 """
