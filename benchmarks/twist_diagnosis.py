@@ -30,8 +30,10 @@ checkpoint and the recorded data D = {(s, o, a, r)}) and runs one of:
   readout's ``--positions`` instead of the exact ones (``--extra-renders K``: the readout
   also sees each training state under K more draws); prints the readout's error on
   D's balancing states (D's images and the same states under the held-out scenes).
-  ``--readout-file F`` freezes a readout fitted elsewhere instead (e.g. on many renders
-  of balancing states by ``benchmarks/twist_readout_scale.py --save-readouts``).
+  ``--readout-file F`` freezes a readout fitted elsewhere instead (a ``StateReadout``
+  file, ``.pt`` and ``.json``: e.g. the committed
+  ``src/simdist/checkpoints/twist_readout/cartpole-balance.pt``, or one written by
+  ``benchmarks/twist_readout_scale.py --save-readouts``).
 - ``delayed``: no student: the Oracle reading the state ``--delays`` control steps late
   (a student whose latent lags the scene keeps at most this).
 - ``probe``: the student's CNN trained *supervised* to regress the state from one
