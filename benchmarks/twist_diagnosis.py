@@ -213,19 +213,6 @@ def readout_precision(args, cfg, readout: StateReadout, recorded: list) -> dict:
     return out
 
 
-def read_once(readout: StateReadout, episodes: list) -> list:
-    """Copies of ``episodes`` whose ("next", "pixels") are the readout's readings of them
-    (``--cache-readout``: the readout is frozen and its student uses no random shift, so
-    the training batches are the same as reading the images at every update)."""
-    out = []
-    for episode in episodes:
-        copy = episode.clone(recurse=False)
-        copy["next"] = episode["next"].clone(recurse=False)
-        copy["next", "pixels"] = readout.read(episode["next", "pixels"])
-        out.append(copy)
-    return out
-
-
 class SensorNoise(torch.nn.Module):
     """Adds white Gaussian noise of ``std`` (the input's units) in training and acting
     alike: a stand-in for a readout of that precision."""
@@ -238,13 +225,11 @@ class SensorNoise(torch.nn.Module):
         return x + self.std * torch.randn_like(x)
 
 
-def copy_rssm(teacher, student) -> None:
-    """The student RSSM's tensors that have the teacher's shapes start as the teacher's."""
-    own = student.rssm.state_dict()
-    same = {k: v for k, v in teacher.world_model.rssm.state_dict().items()
-            if own[k].shape == v.shape}
-    student.rssm.load_state_dict(same, strict=False)
-    print(f"copied {len(same)}/{len(own)} RSSM tensors from the teacher", flush=True)
+def start_from_teacher_rssm(twist: TwistStudent) -> TwistStudent:
+    copied = twist.start_from_teacher_rssm()
+    print(f"copied {copied}/{len(twist.student.rssm.state_dict())} RSSM tensors from the "
+          f"teacher", flush=True)
+    return twist
 
 
 #: variants whose student reads the privileged state vector (evaluated on state, no images)
@@ -273,10 +258,9 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
         if variant == "readout":  # reads them from one image through a frozen readout
             student.encoder = torch.nn.Sequential(readout, student.encoder)
         overrides["shift_pad"] = 0  # a state vector is not an image (nor a readout's)
-        if init_rssm:
-            copy_rssm(teacher, student)
-        return TwistStudent(teacher, student, recipe.twist_config(cfg, overrides),
-                            pixels_key=("next", "pixels" if readout else "state"))
+        twist = TwistStudent(teacher, student, recipe.twist_config(cfg, overrides),
+                             pixels_key=("next", "pixels" if readout else "state"))
+        return start_from_teacher_rssm(twist) if init_rssm else twist
     twist = recipe.new_student(cfg, task, teacher, overrides)
     if variant == "warm":  # encoder + head -> the teacher's embedding; the teacher's RSSM
         encoder = twist.student.encoder
@@ -287,7 +271,7 @@ def make_student(variant: str, cfg, task: str, teacher, lr: float | None,
         twist.student.rssm = copy.deepcopy(teacher.world_model.rssm)
         twist.optim = torch.optim.Adam(twist.student.parameters(), lr=twist.config.lr)
     if variant == "init" or (init_rssm and variant != "warm"):
-        copy_rssm(teacher, twist.student)
+        start_from_teacher_rssm(twist)
     return twist
 
 
@@ -314,11 +298,8 @@ def distil(args, cfg, teacher_result: dict) -> None:
         states_here = episode["next", "state"]
         keep = (balancing(states_here) if args.train_states == "balancing"
                 else states_here[:, 0].abs() < BALANCING_CART)
-        edges = torch.diff(torch.cat([torch.tensor([0]), keep.int(), torch.tensor([0])]))
-        for start, end in zip((edges == 1).nonzero().flatten().tolist(),
-                              (edges == -1).nonzero().flatten().tolist()):
-            if end - start >= cfg.student_slice_len:
-                train_episodes.append(episode[start:end])
+        train_episodes += [episode[start:end]
+                           for start, end in recipe.mask_runs(keep, cfg.student_slice_len)]
     if not any(len(e) >= cfg.student_slice_len for e in train_episodes):
         raise SystemExit(f"no run of --train-states {args.train_states} steps is a slice "
                          f"({cfg.student_slice_len} steps) long: nothing to train on")
@@ -344,7 +325,8 @@ def distil(args, cfg, teacher_result: dict) -> None:
     replay_episodes = train_episodes
     if readout is not None and args.cache_readout:
         start = time.perf_counter()
-        replay_episodes = read_once(readout, train_episodes)  # readings pass through
+        # the readings pass through the frozen readout as they are
+        replay_episodes = [recipe.with_readings(e, readout) for e in train_episodes]
         print(f"read {sum(len(e) for e in train_episodes)} training images once in "
               f"{time.perf_counter() - start:.0f} s", flush=True)
     for episode in replay_episodes:

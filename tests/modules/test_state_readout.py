@@ -150,3 +150,9 @@ def test_readout_student_saves_and_reloads_and_acts_the_same(tmp_path):
 def test_readout_encoder_refuses_a_state_encoder_of_another_width():
     with pytest.raises(ValueError, match="reads 5 values, the readout gives 3"):
         ReadoutEncoder(_readout(), StateEncoder(5, 8, 8))
+
+
+def test_describe_refuses_an_encoder_it_could_not_rebuild():
+    readout = StateReadout(PixelEncoder(4, arch="keypoints", keypoints=4), 5, [0, 1, 2])
+    with pytest.raises(ValueError, match="only a PixelEncoder of arch 'dreamer'"):
+        readout.describe()

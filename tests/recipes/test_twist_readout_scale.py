@@ -111,13 +111,13 @@ def test_recorded_states_become_poses_repeated_per_render(tmp_path):
 
 def test_readings_computed_once_equal_reading_at_every_update():
     from tensordict import TensorDict
-    diagnosis = _diagnosis()
+    diagnosis = _diagnosis()  # the diagnosis's --cache-readout uses the recipe's helper
     torch.manual_seed(1)
     readout = scale.StateReadout(scale.PixelEncoder(4, norm="layer", input_norm="image"), 5,
                                  [0, 1, 2])
     pixels = torch.randint(0, 256, (7, 64, 64, 3), dtype=torch.uint8)
     episode = TensorDict({"next": {"pixels": pixels, "state": torch.zeros(7, 5)}}, [7])
-    [cached] = diagnosis.read_once(readout, [episode])
+    cached = diagnosis.recipe.with_readings(episode, readout)
     assert episode["next", "pixels"].dtype == torch.uint8  # the original is untouched
     with torch.no_grad():
         assert torch.allclose(cached["next", "pixels"], readout(pixels), atol=1e-6)

@@ -122,6 +122,9 @@ class StateReadout(nn.Module):
     def describe(self) -> dict:
         """Plain data that rebuilds this readout (untrained) with :meth:`from_description`."""
         enc = self.encoder
+        if getattr(enc, "arch", None) != "dreamer":  # what from_description rebuilds
+            raise ValueError(f"only a PixelEncoder of arch 'dreamer' is described, got "
+                             f"{type(enc).__name__} {getattr(enc, 'arch', '')!r}")
         return {"depth": int(enc.net[0].out_channels), "norm": enc.norm,
                 "input_norm": enc.input_norm, "state_dim": int(self.state_dim),
                 "dims": self.dims.tolist(),

@@ -127,8 +127,8 @@ class Config:
     # run's camera, else the CNN student above; "none": the CNN student; or the path of a
     # readout file (StateReadout.save). A readout student reads the positions through that
     # frozen, supervised CNN and trains on D's runs inside the readout's fitted domain,
-    # each image read once. Measured on cartpole-balance, three seeds (README): 77%
-    # [69, 86] of the pooled Oracle at 1800 updates in the diagnosis; the CNN student 35%.
+    # each image read once. Measured on cartpole-balance, three seeds (README): 67%
+    # [59, 74] of the pooled Oracle at 1800 updates; the CNN student 35% [33, 37].
     student_readout: str = "auto"
     readout_student_updates: int = 1800  # 0.17 s each on one CPU core (readings cached)
     readout_student_lr: float = 1e-3
@@ -394,24 +394,38 @@ def build_student(cfg: Config, task: str, teacher: DreamerAgent, overrides: dict
     return new_readout_student(cfg, task, teacher, StateReadout.load(path), overrides)
 
 
+def mask_runs(keep: torch.Tensor, min_len: int) -> list[tuple[int, int]]:
+    """``(start, end)`` of each run of consecutive ``True`` in the mask ``keep`` ``[T]``
+    that is at least ``min_len`` steps long.
+
+    Examples:
+        >>> mask_runs(torch.tensor([1, 1, 0, 1, 1, 1, 0], dtype=torch.bool), 2)
+        [(0, 2), (3, 6)]
+    """
+    edges = torch.diff(torch.cat([torch.tensor([0]), keep.int().cpu(), torch.tensor([0])]))
+    starts = (edges == 1).nonzero().flatten().tolist()
+    ends = (edges == -1).nonzero().flatten().tolist()
+    return [(a, b) for a, b in zip(starts, ends) if b - a >= min_len]
+
+
+def with_readings(episode, readout: StateReadout):
+    """A shallow copy of ``episode`` whose ("next", "pixels") are ``readout``'s readings of
+    them (the images are read once: the readout is frozen, so a student trains on the same
+    batches as if it read them at every update)."""
+    out = episode.clone(recurse=False)
+    out["next"] = episode["next"].clone(recurse=False)
+    out["next", "pixels"] = readout.read(episode["next", "pixels"])
+    return out
+
+
 def readout_training_runs(episodes: list, readout: StateReadout, min_len: int) -> list:
     """What a readout student trains on: each run of consecutive steps of ``episodes``
     whose states lie in the readout's fitted domain and that is at least ``min_len`` steps
-    long, as an episode whose images are replaced by the readout's readings (read once:
-    the readout is frozen). Outside its domain a readout extrapolates, so the student
-    would learn the teacher's latent from readings it cannot trust."""
-    runs = []
-    for episode in episodes:
-        keep = readout.covers(episode["next", "state"])
-        edges = torch.diff(torch.cat([torch.tensor([0]), keep.int(), torch.tensor([0])]))
-        for start, end in zip((edges == 1).nonzero().flatten().tolist(),
-                              (edges == -1).nonzero().flatten().tolist()):
-            if end - start >= min_len:
-                run = episode[start:end].clone(recurse=False)
-                run["next"] = run["next"].clone(recurse=False)
-                run["next", "pixels"] = readout.read(run["next", "pixels"])
-                runs.append(run)
-    return runs
+    long, as an episode of the readout's readings (:func:`with_readings`). Outside its
+    domain a readout extrapolates, so the student would learn the teacher's latent from
+    readings it cannot trust."""
+    return [with_readings(episode[start:end], readout) for episode in episodes
+            for start, end in mask_runs(readout.covers(episode["next", "state"]), min_len)]
 
 
 def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
@@ -425,8 +439,7 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
     if isinstance(twist.student.encoder, ReadoutEncoder):
         readout, updates = twist.student.encoder.readout, cfg.readout_student_updates
         slices = cfg.readout_student_slices
-        episodes = readout_training_runs(episodes, readout.cpu(), cfg.student_slice_len)
-        readout.to(twist.device)
+        episodes = readout_training_runs(episodes, readout, cfg.student_slice_len)
         if not episodes:
             raise RuntimeError(f"the teacher's data holds no run of {cfg.student_slice_len} "
                                f"steps inside the readout's domain {readout.domain}: "
