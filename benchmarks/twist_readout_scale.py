@@ -113,15 +113,28 @@ def fit_probe(images: torch.Tensor, y: torch.Tensor, tests: dict, args,
     at each quarter of ``args.updates``, and the fitted readout, frozen on the CPU
     (:func:`fitted_readout`)."""
     torch.manual_seed(args.seed)
-    encoder = PixelEncoder(args.depth, norm="layer", input_norm="image").to(device)
-    head = torch.nn.Linear(encoder.embed_dim, y.shape[-1]).to(device)
+    if args.init_readout:  # go on from a fitted readout, in its units
+        start_from = StateReadout.load(args.init_readout)
+        if start_from.dims.tolist() != list(range(y.shape[-1])):
+            raise ValueError(f"--init-readout {args.init_readout} reads dimensions "
+                             f"{start_from.dims.tolist()}, not (x, cos, sin)")
+        encoder = copy.deepcopy(start_from.encoder).requires_grad_(True).train().to(device)
+        head = torch.nn.Linear(encoder.embed_dim, y.shape[-1])
+        with torch.no_grad():
+            head.weight.copy_(start_from.head.weight[:y.shape[-1]])
+            head.bias.copy_(start_from.head.bias[:y.shape[-1]])
+        head = head.to(device)
+        mean, std = start_from.mean.clone(), start_from.std.clone()
+    else:
+        encoder = PixelEncoder(args.depth, norm="layer", input_norm="image").to(device)
+        head = torch.nn.Linear(encoder.embed_dim, y.shape[-1]).to(device)
+        mean, std = y.mean(0), y.std(0)
     shift = RandomShift(args.shift, "frame")
     params = [*encoder.parameters(), *head.parameters()]
     optim = torch.optim.Adam(params, lr=args.lr)
     # cosine decay to 1% of the rate: a readout is judged on its final precision
     sched = torch.optim.lr_scheduler.LambdaLR(
         optim, lambda s: 0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * min(s, args.updates) / args.updates)))
-    mean, std = y.mean(0), y.std(0)
     images, y = images.to(device), y.to(device)
     mean, std = mean.to(device), std.to(device)
 
@@ -201,6 +214,9 @@ def main(argv=None) -> None:
                         "sets stay uniform in the balancing region")
     p.add_argument("--renders-per-state", type=int, default=1,
                    help="--states-file: renders of each recorded state, one draw each")
+    p.add_argument("--init-readout", type=Path, default=None,
+                   help="a StateReadout file of (x, cos, sin) to go on fitting (its weights "
+                        "and units) instead of a fresh CNN, e.g. to widen its domain")
     p.add_argument("--save-readouts", type=Path, default=None,
                    help="folder: each fitted readout as readout_<camera>_<images>.pt, for "
                         "`twist_diagnosis.py readout --readout-file`")

@@ -1,5 +1,7 @@
 import json
 import os
+import time
+from pathlib import Path
 
 import pytest
 import torch
@@ -151,3 +153,39 @@ def test_run_jobs_in_processes_keeps_order_and_raises_the_first_error():
         run_jobs([(pow, (2, 3)), (divmod, (1, 0))], jobs=2)
     with pytest.raises(ValueError, match="jobs must be >= 1"):
         run_jobs(calls, jobs=0)
+
+
+def _stamp(path: str, name: str, seconds: float) -> str:
+    """Appends ``name start`` and ``name end`` to ``path`` around a sleep (a run_jobs call)."""
+    with open(path, "a") as f:
+        f.write(f"{name} start\n")
+    time.sleep(seconds)
+    with open(path, "a") as f:
+        f.write(f"{name} end\n")
+    return name
+
+
+def test_run_jobs_starts_a_call_only_after_its_prerequisites_and_in_list_order(tmp_path):
+    log = str(tmp_path / "log")
+    # teacher (slow) | baseline beside it; the students wait for the teacher and, once
+    # it is done, start before the second baseline listed after them
+    calls = [(_stamp, (log, "teacher", 1.5)), (_stamp, (log, "student_a", 0.1)),
+             (_stamp, (log, "student_b", 0.1)), (_stamp, (log, "baseline_1", 2.5)),
+             (_stamp, (log, "baseline_2", 0.1))]
+    after = [(), (0,), (0,), (), ()]
+    assert run_jobs(calls, jobs=2, after=after) == [c[1][1] for c in calls]
+    lines = Path(log).read_text().split("\n")
+    at = {line: i for i, line in enumerate(lines)}
+    assert at["teacher end"] < at["student_a start"] and at["teacher end"] < at["student_b start"]
+    assert at["student_b start"] < at["baseline_2 start"]  # list order is the priority
+    assert run_jobs(calls[:3], jobs=1, after=after[:3]) == ["teacher", "student_a", "student_b"]
+
+
+def test_run_jobs_refuses_a_prerequisite_listed_later_or_a_wrong_length():
+    calls = [(pow, (2, 3)), (divmod, (7, 2))]
+    with pytest.raises(ValueError, match="only wait for calls listed before it"):
+        run_jobs(calls, jobs=2, after=[(1,), ()])
+    with pytest.raises(ValueError, match="only wait for calls listed before it"):
+        run_jobs(calls, jobs=2, after=[(), (1,)])
+    with pytest.raises(ValueError, match="after has 1 entries for 2 calls"):
+        run_jobs(calls, jobs=2, after=[()])

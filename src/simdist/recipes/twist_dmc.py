@@ -544,7 +544,7 @@ def _stage(runner: StageRunner, name: str, fn) -> dict:
 
 
 def teacher_chain(cfg: Config, task: str, seed: int) -> None:
-    """teacher -> oracle -> the three students: the stages that need the teacher."""
+    """teacher -> Oracle, and the blind references beside them."""
     runner, key = stage_runner(cfg), f"{task}_s{seed}"
     teacher = _stage(runner, f"{key}_teacher", lambda d: teacher_stage(cfg, task, seed, d))
 
@@ -555,9 +555,16 @@ def teacher_chain(cfg: Config, task: str, seed: int) -> None:
 
     _stage(runner, f"{key}_oracle", oracle)
     _stage(runner, f"{key}_references", lambda d: references_stage(cfg, task, seed))
-    for suffix, (_, changes) in STUDENTS.items():
-        _stage(runner, f"{key}_{suffix}",
-               lambda d, c=changes: student_stage(cfg, task, seed, teacher, c, d))
+
+
+def student_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
+    """One student of :data:`STUDENTS` (TWIST or an ablation) distilled from the finished
+    teacher of ``task`` and ``seed``: the students of one teacher are independent of each
+    other, so they run side by side."""
+    runner, key = stage_runner(cfg), f"{task}_s{seed}"
+    teacher = runner.result(f"{key}_teacher")
+    _stage(runner, f"{key}_{suffix}",
+           lambda d: student_stage(cfg, task, seed, teacher, STUDENTS[suffix][1], d))
 
 
 def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
@@ -581,17 +588,23 @@ def main(argv=None):
     out = Path(cfg.output_dir)
     runner = stage_runner(cfg)  # refuses a different config before any work starts
 
-    # Longest chains first, so that two processes finish close together.
+    # Teachers first (everything of TWIST waits for them), then each teacher's students,
+    # which start as soon as their teacher is done, ahead of the baselines still queued.
     chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
+    after = [()] * len(chains)
+    for i, (task, seed) in enumerate((t, s) for t in cfg.tasks for s in cfg.seeds):
+        chains += [(student_chain, (cfg, task, seed, suffix)) for suffix in STUDENTS]
+        after += [(i,)] * len(STUDENTS)
     stages = {suffix: name for suffix, (name, _) in STUDENTS.items()}  # stage -> table row
     if cfg.baselines:
         chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
                    for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
         chains += [(sac_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
+        after += [()] * (len(chains) - len(after))
         stages.update({suffix: name for suffix, (name, _) in PIXEL_DREAMERS.items()})
         stages[ASYMMETRIC_SAC[0]] = ASYMMETRIC_SAC[1]
     start = time.perf_counter()
-    run_jobs(chains, cfg.jobs)
+    run_jobs(chains, cfg.jobs, after=after)
 
     results, records = {}, {}
     for task in cfg.tasks:

@@ -11,7 +11,7 @@ import sys
 import threading
 import time
 import weakref
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -207,8 +207,14 @@ def _release_lock(key: str) -> None:
 
 
 # -- parallel jobs ---------------------------------------------------------------------------
-def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
-    """Runs independent ``(fn, args)`` calls, ``jobs`` at a time; returns their results in order.
+def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
+             after: Sequence[Sequence[int]] | None = None) -> list:
+    """Runs ``(fn, args)`` calls, ``jobs`` at a time; returns their results in order.
+
+    ``after[i]`` lists the calls (earlier in ``calls``) that call ``i`` waits for, e.g. a
+    student stage waits for its teacher's; ``None``: the calls are independent. Whenever a
+    process is free, the first call in the list whose prerequisites have finished starts,
+    so list order is the priority.
 
     ``jobs=1`` calls them here, in order. Otherwise each runs in one of ``jobs`` spawned
     worker processes (``fn`` must be importable: a module-level function), each with
@@ -225,11 +231,19 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
     Examples:
         >>> run_jobs([(pow, (2, 3)), (divmod, (7, 2))])
         [8, (3, 1)]
-        >>> run_jobs([(pow, (2, 3)), (divmod, (7, 2))], jobs=2)
-        [8, (3, 1)]
+        >>> run_jobs([(pow, (2, 3)), (divmod, (7, 2)), (max, (1, 5))], jobs=2,
+        ...          after=[(), (), (0, 1)])
+        [8, (3, 1), 5]
     """
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
+    after = [tuple(a) for a in after] if after is not None else [()] * len(calls)
+    if len(after) != len(calls):
+        raise ValueError(f"after has {len(after)} entries for {len(calls)} calls")
+    for i, needs in enumerate(after):
+        if any(not isinstance(j, int) or not 0 <= j < i for j in needs):
+            raise ValueError(f"after[{i}] = {needs}: a call can only wait for calls "
+                             f"listed before it (indices 0..{i - 1})")
     if jobs == 1 or len(calls) <= 1:
         return [fn(*args) for fn, args in calls]
     threads = max(1, (os.cpu_count() or 1) // jobs)
@@ -239,15 +253,26 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1) -> list:
     # opened a GL context can deadlock.
     pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_init_worker, initargs=(threads, os.getpid(), locks))
-    futures = []
+    results: dict[int, Any] = {}
+    running: dict[Future, int] = {}
+    waiting = list(range(len(calls)))
     try:
-        futures = [pool.submit(fn, *args) for fn, args in calls]
-        return [future.result() for future in futures]
+        while waiting or running:
+            # fill free processes in list order; the pool's own queue stays empty, so a call
+            # that becomes ready later still starts before those listed after it
+            for i in [i for i in waiting if all(j in results for j in after[i])]:
+                if len(running) >= jobs:
+                    break
+                fn, args = calls[i]
+                running[pool.submit(fn, *args)] = i
+                waiting.remove(i)
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in done:
+                results[running.pop(future)] = future.result()
+        return [results[i] for i in range(len(calls))]
     except BrokenProcessPool as err:
         pool.shutdown(wait=True, cancel_futures=True)
-        finished = [f.done() and not f.cancelled() and f.exception() is None for f in futures]
-        finished += [False] * (len(calls) - len(finished))  # broke while submitting
-        unfinished = [_describe(fn, args) for (fn, args), ok in zip(calls, finished) if not ok]
+        unfinished = [_describe(*calls[i]) for i in range(len(calls)) if i not in results]
         raise BrokenProcessPool(
             f"a run_jobs worker process died abruptly (killed by a signal or the "
             f"out-of-memory killer?) while these calls had not finished: {unfinished}. "
