@@ -29,6 +29,12 @@ Rendering runs in ``--workers`` processes (one MuJoCo context each); training ru
     python benchmarks/twist_readout_scale.py --device cuda --workers 15 \\
         --train-images 16000 64000 --camera train --updates 24000 --test-images 4000 \\
         --save-readouts RO
+    # widen a fitted readout's domain on the CPU (~35 min on 2 cores): go on from its
+    # weights and units on poses with the cart up to 1.6 m from the centre
+    python benchmarks/twist_readout_scale.py --workers 2 --train-images 32000 \
+        --camera train --updates 8000 --batch 128 --lr 3e-4 --max-cart 1.6 \
+        --init-readout src/simdist/checkpoints/twist_readout/cartpole-balance.pt \
+        --save-readouts RO
     # a quick look on the CPU
     python benchmarks/twist_readout_scale.py --train-images 2000 --updates 300 --test-images 500
 """

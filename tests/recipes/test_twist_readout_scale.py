@@ -123,3 +123,33 @@ def test_readings_computed_once_equal_reading_at_every_update():
         assert torch.allclose(cached["next", "pixels"], readout(pixels), atol=1e-6)
         # a student whose encoder starts with the readout trains on either the same way
         assert torch.equal(readout(cached["next", "pixels"]), cached["next", "pixels"])
+
+
+def test_init_readout_goes_on_from_the_file_in_its_units(tmp_path):
+    scale.main(["--train-images", "6", "--updates", "4", "--batch", "4", "--test-images",
+                "6", "--depth", "4", "--save-readouts", str(tmp_path / "a")])
+    start = scale.StateReadout.load(tmp_path / "a" / "readout_none_6.pt")
+    # a vanishing rate: the refit must be the starting readout, with its mean and std
+    scale.main(["--train-images", "6", "--updates", "4", "--batch", "4", "--test-images",
+                "6", "--depth", "4", "--lr", "1e-12", "--max-cart", "1.5",
+                "--init-readout", str(tmp_path / "a" / "readout_none_6.pt"),
+                "--save-readouts", str(tmp_path / "b")])
+    refit = scale.StateReadout.load(tmp_path / "b" / "readout_none_6.pt")
+    assert torch.equal(refit.mean, start.mean) and torch.equal(refit.std, start.std)
+    for a, b in zip(start.state_dict().values(), refit.state_dict().values()):
+        assert torch.allclose(a.float(), b.float(), atol=1e-6)
+    assert refit.domain[0][0] == -1.5 and refit.domain[1][0] == 1.5  # the new box
+    meta = json.loads((tmp_path / "b" / "readout_none_6.json").read_text())
+    assert "--init-readout" in meta["command"]
+    # a readout of other dimensions is not a starting point for (x, cos, sin)
+    other = scale.StateReadout(scale.PixelEncoder(4, norm="layer", input_norm="image"), 5,
+                               [0, 2])
+    other.save(tmp_path / "other.pt")
+    try:
+        scale.main(["--train-images", "6", "--updates", "4", "--batch", "4",
+                    "--test-images", "6", "--depth", "4",
+                    "--init-readout", str(tmp_path / "other.pt")])
+    except ValueError as err:
+        assert "not (x, cos, sin)" in str(err)
+    else:
+        raise AssertionError("a readout of dimensions [0, 2] must be refused")
