@@ -88,3 +88,29 @@ def test_rotation_identity_cases_and_bad_arguments():
         RandomRotate(5, per="batch")
     with pytest.raises(ValueError, match="sequence"):
         RandomRotate(5, per="sequence")(torch.zeros(8, 8, 3))
+
+
+def test_reading_noise_has_the_asked_std_per_dimension_and_is_off_in_eval():
+    from simdist.modules import ReadingNoise
+    std = torch.tensor([0.1, 0.0, 0.02])
+    noise = ReadingNoise(std, generator=torch.Generator().manual_seed(0))
+    readings = torch.full((200, 50, 3), 0.5)
+    out = noise(readings)
+    residual = (out - readings).reshape(-1, 3)
+    assert torch.allclose(residual.std(0), std, rtol=0.02, atol=1e-6)
+    assert residual.mean(0).abs().max() < 0.003  # unbiased
+    assert torch.equal(out[..., 1], readings[..., 1])
+    assert not torch.equal(noise(readings), out)  # fresh noise every call
+    assert noise.eval()(readings) is readings
+
+
+def test_reading_noise_refuses_images_wrong_widths_and_bad_stds():
+    from simdist.modules import ReadingNoise
+    noise = ReadingNoise(torch.tensor([0.1, 0.1, 0.1]))
+    with pytest.raises(ValueError, match="float readings"):
+        noise(torch.zeros(2, 64, 64, 3, dtype=torch.uint8))
+    with pytest.raises(ValueError, match=r"\[\.\.\., 3\]"):
+        noise(torch.zeros(2, 5))
+    for bad in (torch.tensor([-0.1]), torch.tensor([float("nan")]), torch.zeros(2, 2)):
+        with pytest.raises(ValueError, match="std must be"):
+            ReadingNoise(bad)

@@ -488,3 +488,34 @@ def test_committed_cartpole_readout_reads_rendered_poses():
     readings = readout.read(images)
     assert (readings[:, 0] - poses[:, 0]).abs().max() < 0.15
     assert (readings[:, 2] - poses[:, 1].sin()).abs().max() < 0.05
+
+
+def test_reading_noise_is_drawn_in_updates_at_the_readouts_spread():
+    import dataclasses
+
+    from tensordict import TensorDict
+
+    from simdist.agents import DreamerAgent
+
+    recipe = _recipe_module()
+    cfg = dataclasses.replace(recipe.Config(), model_size="tiny",
+                              readout_student_reading_noise=0.1)
+    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    teacher = recipe.teacher_agent(cfg, "cartpole-balance")
+    assert isinstance(teacher, DreamerAgent)
+    twist = recipe.new_readout_student(cfg, "cartpole-balance", teacher, readout, {})
+    assert isinstance(twist.augment, recipe.ReadingNoise)
+    assert torch.allclose(twist.augment.std, 0.1 * readout.std)
+    readings = torch.zeros(2, 4, 3)
+    batch = TensorDict({"action": torch.zeros(2, 4, 1),
+                        "is_init": torch.zeros(2, 4, 1, dtype=torch.bool),
+                        "next": {"state": torch.zeros(2, 4, 5), "pixels": readings}}, [2, 4])
+    seen = []
+    twist.distillation.register_forward_pre_hook(
+        lambda module, args: seen.append(args[0]["next", "pixels"].clone()))
+    assert "loss_distillation" in twist.update(batch)
+    assert not torch.equal(seen[0], readings)  # the student trained on noisy readings
+    assert torch.equal(batch["next", "pixels"], readings)  # the caller's batch untouched
+    quiet = recipe.new_readout_student(dataclasses.replace(cfg, readout_student_reading_noise=0.0),
+                                       "cartpole-balance", teacher, readout, {})
+    assert quiet.augment is None

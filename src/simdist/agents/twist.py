@@ -95,6 +95,9 @@ class TwistStudent(ckpt_format.LoadableAgent):
         config: :class:`TwistConfig`; ``imagined=False`` and ``action_noise_std=0`` give
             the paper's two ablations.
         pixels_key: where the randomised images are in a batch.
+        augment: a module applied to the student's observations in every update (after
+            the config's shift and rotation), never at deployment, e.g.
+            :class:`~simdist.modules.ReadingNoise` for a readout student's readings.
 
     Examples:
         >>> from tensordict import TensorDict
@@ -111,7 +114,8 @@ class TwistStudent(ckpt_format.LoadableAgent):
     """
 
     def __init__(self, teacher: DreamerAgent, student: DreamerWorldModel,
-                 config: TwistConfig = TwistConfig(), pixels_key=("next", "pixels")):
+                 config: TwistConfig = TwistConfig(), pixels_key=("next", "pixels"),
+                 augment: torch.nn.Module | None = None):
         self.teacher, self.student, self.config = teacher, student, config
         teacher_obs = ("next", teacher.obs_key)
         self.distillation = TwistDistillationLoss(teacher.world_model, student,
@@ -132,6 +136,9 @@ class TwistStudent(ckpt_format.LoadableAgent):
             self.augment = torch.nn.Sequential(
                 RandomShift(config.shift_pad, config.shift_per),
                 RandomRotate(config.rotate_deg, config.shift_per))
+        if augment is not None:  # e.g. ReadingNoise for a readout student's readings
+            self.augment = augment if self.augment is None else torch.nn.Sequential(
+                self.augment, augment)
         self.optim = torch.optim.Adam(student.parameters(), lr=config.lr)
 
     @property

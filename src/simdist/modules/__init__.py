@@ -1,6 +1,6 @@
 """World-model parts as composable modules (TensorDict adapters where keys matter)."""
 
-from simdist.modules.augment import RandomRotate, RandomShift
+from simdist.modules.augment import RandomRotate, RandomShift, ReadingNoise
 from simdist.modules.encoders import (ChannelLayerNorm, HistoryEncoder, PixelEncoder,
                                       StateEncoder, simnorm)
 from simdist.modules.ensemble import WorldModelEnsemble
@@ -11,7 +11,7 @@ from simdist.modules.state_readout import ReadoutEncoder, StateReadout
 from simdist.modules.simdist_model import SIMDIST_SIZES, MLPDynamics, SimDistWorldModel
 from simdist.modules.world_model import RSSM_SIZES, DreamerWorldModel
 
-__all__ = ["RandomShift", "RandomRotate", "ChannelLayerNorm", "HistoryEncoder", "PixelEncoder", "StateEncoder",
+__all__ = ["RandomShift", "RandomRotate", "ReadingNoise", "ChannelLayerNorm", "HistoryEncoder", "PixelEncoder", "StateEncoder",
            "simnorm", "Actor", "PixelDecoder",
            "PolicyPrior", "ScalarHead", "StateDecoder", "RSSM", "RSSMState", "SIMDIST_SIZES",
            "MLPDynamics", "SimDistWorldModel", "RSSM_SIZES", "DreamerWorldModel",

@@ -128,3 +128,48 @@ class RandomRotate(nn.Module):
         if images.dtype == torch.uint8:
             out = out.round().clamp(0, 255)
         return out.to(images.dtype).reshape(images.shape)
+
+
+class ReadingNoise(nn.Module):
+    """Fresh Gaussian noise on precomputed readings ``[..., D]`` in training, none in eval.
+
+    A readout student (:class:`~simdist.modules.ReadoutEncoder`) trains for hundreds of
+    epochs on readings computed once per recorded image, so each step carries the same
+    reading error every time it is sampled; deployed, every reading has a fresh error.
+    Drawing new noise of the readout's own size in every update shows the student many
+    errors per step, so it must rely on its dynamics rather than on any one reading.
+
+    Args:
+        std: ``[D]`` noise standard deviation per reading dimension, in its units.
+        generator: optional ``torch.Generator`` for the noise.
+
+    Examples:
+        >>> noise = ReadingNoise(torch.tensor([0.1, 0.0, 0.02]))
+        >>> readings = torch.zeros(4, 50, 3)
+        >>> noisy = noise(readings)
+        >>> noisy.shape, bool(noisy[..., 1].eq(0).all())  # a zero std leaves a dim as is
+        (torch.Size([4, 50, 3]), True)
+        >>> noise.eval()(readings).equal(readings)  # no noise at deployment
+        True
+    """
+
+    def __init__(self, std: torch.Tensor, generator: torch.Generator | None = None):
+        super().__init__()
+        std = torch.as_tensor(std, dtype=torch.float32)
+        if std.ndim != 1 or not torch.isfinite(std).all() or (std < 0).any():
+            raise ValueError(f"std must be a 1-d tensor of finite values >= 0, got {std}")
+        self.register_buffer("std", std.clone())
+        self.generator = generator
+
+    def extra_repr(self) -> str:
+        return f"std={[round(v, 5) for v in self.std.tolist()]}"
+
+    def forward(self, readings: torch.Tensor) -> torch.Tensor:
+        if not readings.is_floating_point() or readings.shape[-1:] != self.std.shape:
+            raise ValueError(f"ReadingNoise expects float readings [..., {len(self.std)}], "
+                             f"got {readings.dtype} {tuple(readings.shape)}")
+        if not self.training:
+            return readings
+        noise = torch.randn(readings.shape, device=readings.device, dtype=readings.dtype,
+                            generator=self.generator)
+        return readings + noise * self.std.to(readings.dtype)

@@ -52,7 +52,7 @@ from simdist.agents import (AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgen
                              DreamerConfig, TwistConfig, TwistStudent)
 from simdist.envs import TASKS, VisualRandomisation
 from simdist.modules import (RSSM_SIZES, DreamerWorldModel, PixelEncoder, ReadoutEncoder,
-                             StateReadout)
+                             ReadingNoise, StateReadout)
 from simdist.pipelines import (EpisodeReplay, OnlineConfig, ReferencePolicy, control_env,
                                dreamer_keys, evaluate_returns, load_episodes, mean_metrics,
                                stage_seed, train_dreamer_online, train_resumable)
@@ -133,6 +133,10 @@ class Config:
     readout_student_updates: int = 1800  # 0.17 s each on one CPU core (readings cached)
     readout_student_lr: float = 1e-3
     readout_student_slices: int = 16
+    # fresh Gaussian noise on the readings in every update, in multiples of each reading's
+    # spread over the readout's domain (its std); 0: none. The readout's own error is
+    # ~0.07 of the spread on training scenes (its .json)
+    readout_student_reading_noise: float = 0.0
     # The teacher stage records D under training randomisation; True adds a camera-pose
     # draw every step (TRAIN_CAMERA_JITTER: 1.5x the evaluation's widths, a margin instead
     # of the test scene's exact range). Not in TWIST's training DR (camera at evaluation
@@ -203,7 +207,7 @@ class Config:
               f".json beside it), got {self.student_readout!r}")
         check_positive(self, "readout_student_lr", "readout_student_slices")
         check_positive(self, "prefill_steps", "student_updates", "action_noise_std",
-                       "readout_student_updates",
+                       "readout_student_updates", "readout_student_reading_noise",
                        "teacher_actor_noise",
                        "student_shift_pad", "student_rotate_deg", allow_zero=True)
         check(self.camera_id is None or self.camera_id >= 0, "camera_id",
@@ -381,7 +385,9 @@ def new_readout_student(cfg: Config, task: str, teacher: DreamerAgent, readout: 
     # readings are not images: no shift or rotation
     config = twist_config(cfg, {"shift_pad": 0, "rotate_deg": 0.0,
                                 "lr": cfg.readout_student_lr, **overrides})
-    twist = TwistStudent(teacher, model, config)
+    noise = cfg.readout_student_reading_noise
+    twist = TwistStudent(teacher, model, config,
+                         augment=ReadingNoise(noise * readout.std) if noise else None)
     twist.start_from_teacher_rssm()
     return twist.to(cfg.device)
 
