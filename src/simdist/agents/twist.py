@@ -146,9 +146,12 @@ class TwistStudent(ckpt_format.LoadableAgent):
         return module_device(self.student)
 
     def to(self, device: str | torch.device) -> TwistStudent:
-        """Moves the student and the frozen teacher to ``device``; returns ``self``."""
+        """Moves the student, the frozen teacher and the augmentation (its buffers, e.g.
+        :class:`~simdist.modules.ReadingNoise`'s std) to ``device``; returns ``self``."""
         self.teacher.to(device)
         move_to_device([self.student], [self.optim], device)
+        if self.augment is not None:
+            self.augment.to(device)
         return self
 
     def start_from_teacher_rssm(self) -> int:

@@ -135,7 +135,8 @@ class Config:
     readout_student_slices: int = 16
     # fresh Gaussian noise on the readings in every update, in multiples of each reading's
     # spread over the readout's domain (its std); 0: none. The readout's own error is
-    # ~0.07 of the spread on training scenes (its .json)
+    # ~0.07 of the spread on training scenes (its .json); 0.1 measured worse on seeds 1
+    # and 2 (300 / 348 against 353 / 443; benchmarks/README.md)
     readout_student_reading_noise: float = 0.0
     # The teacher stage records D under training randomisation; True adds a camera-pose
     # draw every step (TRAIN_CAMERA_JITTER: 1.5x the evaluation's widths, a margin instead
