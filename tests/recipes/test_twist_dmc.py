@@ -358,6 +358,33 @@ def test_no_baselines_runs_only_the_teacher_chain(tmp_path):
     assert not list((tmp_path / "stages").glob("*sac*"))
 
 
+def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path):
+    import pytest
+
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    assert recipe.Config().students == list(recipe.STUDENTS)
+    for bad, match in ((["twist", "dagger"], "need distinct names"), ([], "need distinct"),
+                       (["twist", "twist"], "need distinct"),
+                       (["no_noise"], "recording shows the TWIST student")):
+        with pytest.raises(ConfigError, match=match):
+            recipe.Config(students=bad)
+    args = ("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines")
+    proc = _run(*args, "--students", "twist")
+    assert proc.returncode == 0, proc.stderr
+    task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
+    assert recipe.STUDENTS["twist"][0] in task
+    assert not any("w/o" in name for name in task)
+    assert not list((tmp_path / "stages").glob("*no_noise*"))
+    # a later run adds an ablation into the same folder: students pick rows, not figures
+    proc = _run(*args, "--students", "twist", "no_noise")
+    assert proc.returncode == 0, proc.stderr
+    assert "stage cartpole-balance_s0_twist: already done" in proc.stdout
+    task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
+    assert recipe.STUDENTS["no_noise"][0] in task
+
+
 def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
     import dataclasses
 

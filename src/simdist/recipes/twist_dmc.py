@@ -179,6 +179,11 @@ class Config:
     # cost more CPU time than the rest. Not part of the results (it picks rows, not
     # figures): a later run with True into the same folder adds the baselines.
     baselines: bool = True
+    # which of TWIST and its ablations to distil (keys of STUDENTS: twist, no_imagined,
+    # no_noise), e.g. ["twist"] to skip the ablations: each is a 500-900 s stage on the
+    # CPU default. Not part of the results (it picks rows, not figures): a later run with
+    # more students into the same folder adds them; the recording needs "twist".
+    students: list[str] = field(default_factory=lambda: list(STUDENTS))
     # stages run side by side in this many processes (teacher chain beside the pixel
     # Dreamers). Not part of the results.
     jobs: int = min(2, os.cpu_count() or 1)  # 2 on two or more cores
@@ -200,6 +205,11 @@ class Config:
                        "sac_train_every", "sac_batch",
                        "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
                        "actor_lr", "critic_lr", "jobs")
+        unknown = [name for name in self.students if name not in STUDENTS]
+        check(self.students and not unknown and len(set(self.students)) == len(self.students),
+              "students", f"need distinct names from {list(STUDENTS)}, got {self.students}")
+        check(not self.record or "twist" in self.students, "students",
+              "the recording shows the TWIST student: add 'twist' or pass --no-record")
         for flag in ("train_camera", "baselines"):
             check(isinstance(getattr(self, flag), bool), flag,
                   f"must be true or false, got {getattr(self, flag)!r}")
@@ -541,7 +551,7 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 # -- the recipe -------------------------------------------------------------------------
 def stage_runner(cfg: Config) -> StageRunner:
     return StageRunner(cfg.output_dir, cfg,
-                       runtime_keys=("device", "jobs", "logger", "baselines"))
+                       runtime_keys=("device", "jobs", "logger", "baselines", "students"))
 
 
 def _stage(runner: StageRunner, name: str, fn) -> dict:
@@ -600,9 +610,9 @@ def main(argv=None):
     chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
     after = [()] * len(chains)
     for i, (task, seed) in enumerate((t, s) for t in cfg.tasks for s in cfg.seeds):
-        chains += [(student_chain, (cfg, task, seed, suffix)) for suffix in STUDENTS]
-        after += [(i,)] * len(STUDENTS)
-    stages = {suffix: name for suffix, (name, _) in STUDENTS.items()}  # stage -> table row
+        chains += [(student_chain, (cfg, task, seed, suffix)) for suffix in cfg.students]
+        after += [(i,)] * len(cfg.students)
+    stages = {suffix: STUDENTS[suffix][0] for suffix in cfg.students}  # stage -> table row
     if cfg.baselines:
         chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
                    for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
