@@ -7,7 +7,8 @@ from tensordict import TensorDict
 
 from simdist.agents import DreamerAgent, DreamerConfig
 from simdist.pipelines import (EpisodeReplay, OnlineConfig, control_env, dreamer_keys,
-                               load_episodes, train_dreamer_online)
+                               load_episodes, snapshot_paths, train_dreamer_online)
+from simdist.utils import load_checkpoint
 
 
 def _setup(pixels=False):
@@ -32,6 +33,22 @@ def test_run_collects_whole_episodes_and_records_pixels_with_state(tmp_path):
         assert episode["next", "pixels"].dtype == torch.uint8
         assert episode["next", "state"].shape == (12, 5)
     assert "agent" not in episodes[0].keys()  # only the asked-for keys are stored
+
+
+def test_snapshots_keep_the_agent_after_each_of_the_last_episodes(tmp_path):
+    agent, env, config = _setup()
+    assert snapshot_paths(tmp_path) == []
+    with pytest.raises(ValueError, match="snapshots must be >= 0"):
+        train_dreamer_online(agent, env, config, tmp_path, dreamer_keys("state"),
+                             progress=False, snapshots=-1)
+    train_dreamer_online(agent, env, config, tmp_path, dreamer_keys("state"), progress=False,
+                         snapshots=2)
+    paths = snapshot_paths(tmp_path)
+    assert [p.name for p in paths] == ["00001.pt", "00002.pt"]  # of episodes 0, 1, 2
+    first, last = (load_checkpoint(p)["agent"]["actor"] for p in paths)
+    final = load_checkpoint(tmp_path / "agent.pt")["agent"]["actor"]
+    assert all(torch.equal(last[k], final[k]) for k in final)  # the last is the final agent
+    assert not all(torch.equal(first[k], final[k]) for k in final)  # the one before is not
 
 
 def test_killed_run_resumes_without_recollecting(tmp_path, monkeypatch):

@@ -4,7 +4,7 @@ from simdist.pipelines.control import (EpisodeReplay, control_env, dreamer_keys,
                                        evaluate_returns, returns_stats)
 from simdist.pipelines.evaluate_agent import evaluate_agent, record_video
 from simdist.pipelines.locomotion import as_slices, locomotion_env, progress_stats, rollout
-from simdist.pipelines.online_dreamer import (OnlineConfig, load_episodes,
+from simdist.pipelines.online_dreamer import (OnlineConfig, load_episodes, snapshot_paths,
                                               train_dreamer_online)
 from simdist.pipelines.policy_finetune import OfflineSAC, OfflineSACConfig
 from simdist.pipelines.reference_policies import ReferencePolicy
@@ -12,7 +12,8 @@ from simdist.pipelines.simulator_dynamics import SimulatorDynamics, SimulatorPla
 from simdist.pipelines.resumable import mean_metrics, stage_seed, train_resumable, weights
 
 __all__ = ["EpisodeReplay", "control_env", "dreamer_keys", "evaluate_returns", "returns_stats",
-           "OnlineConfig", "load_episodes", "train_dreamer_online", "as_slices", "locomotion_env",
+           "OnlineConfig", "load_episodes", "snapshot_paths", "train_dreamer_online",
+           "as_slices", "locomotion_env",
            "progress_stats", "rollout", "OfflineSAC", "OfflineSACConfig", "mean_metrics", "stage_seed", "train_resumable", "weights",
            "evaluate_agent", "record_video", "SimulatorDynamics", "SimulatorPlanningPolicy",
            "ReferencePolicy"]

@@ -75,9 +75,18 @@ def load_episodes(stage_dir: str | Path) -> list[TensorDict]:
     return [load_memmap(p) for p in paths]
 
 
+def snapshot_paths(stage_dir: str | Path) -> list[Path]:
+    """The snapshots an online run kept (``snapshots=k``), oldest first; [] if none."""
+    folder = Path(stage_dir) / "snapshots"
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir()
+                  if p.suffix == ".pt" and not p.name.startswith("."))  # no temp files
+
+
 def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path,
                          keys: list, desc: str = "dreamer", progress: bool = True,
-                         seed: int | None = None, logger=None) -> dict:
+                         seed: int | None = None, logger=None, snapshots: int = 0) -> dict:
     """Alternates collecting one episode with ``agent`` and ``episode_steps / train_every``
     updates on slices of everything collected so far.
 
@@ -95,6 +104,11 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
     With a TorchRL ``logger``, each update's metrics and each episode's return are logged
     under ``desc/``.
 
+    With ``snapshots = k > 0``, the agent's state after each of the last ``k`` episodes'
+    updates is also kept, as ``stage_dir/snapshots/<episode>.pt`` (``{"agent": ...}``, the
+    checkpoint's format; the last one equals ``agent.pt``), for a caller that picks among
+    them (:func:`snapshot_paths`).
+
     Args:
         agent: a :class:`~simdist.agents.DreamerAgent` or any agent with the same verbs
             (``policy(explore=True)`` acts, ``update(slices)`` trains, ``state_dict``,
@@ -107,6 +121,8 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
     Returns:
         ``{"episode_returns": [...], "history": [per-update metrics], "updates": n}``.
     """
+    if snapshots < 0:
+        raise ValueError(f"snapshots must be >= 0, got {snapshots}")
     stage_dir = Path(stage_dir)
     (stage_dir / "episodes").mkdir(parents=True, exist_ok=True)
     checkpoint = stage_dir / "agent.pt"
@@ -147,6 +163,9 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
                                          f"checkpoint kept at {checkpoint}")
             history.append(metrics)
             log_metrics(logger, desc, metrics, len(history))
+        if i >= config.episodes - snapshots:  # before the checkpoint: a crash between
+            # the two redoes this episode's updates (seeded) and rewrites the same snapshot
+            save_atomic({"agent": agent.state_dict()}, stage_dir / "snapshots" / f"{i:05d}.pt")
         save_atomic({"agent": agent.state_dict(), "episodes": i + 1, "history": history,
                      "returns": returns}, checkpoint)
         losses = {k: f"{v:.3g}" for k, v in history[-1].items() if k.startswith("loss")}

@@ -55,7 +55,8 @@ from simdist.modules import (RSSM_SIZES, DreamerWorldModel, PixelEncoder, Readou
                              ReadingNoise, StateReadout)
 from simdist.pipelines import (EpisodeReplay, OnlineConfig, ReferencePolicy, control_env,
                                dreamer_keys, evaluate_returns, load_episodes, mean_metrics,
-                               stage_seed, train_dreamer_online, train_resumable)
+                               snapshot_paths, stage_seed, train_dreamer_online,
+                               train_resumable)
 from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
 from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_jobs,
@@ -157,6 +158,15 @@ class Config:
     # evaluated without noise. 0: TWIST's teacher (benchmarks/README.md, "A teacher that
     # tolerates a student's errors").
     teacher_actor_noise: float = 0.0
+    # Teacher selection: keep the teacher's weights after each of its last
+    # teacher_snapshots training episodes and deploy the snapshot with the best mean return
+    # over teacher_select_episodes state episodes on validation seeds of their own (neither
+    # the training nor the evaluation seeds); 0: the last weights, as TWIST. At 10000 steps
+    # a teacher's evaluated return swings by ~100 from one snapshot to the next
+    # (benchmarks/README.md, twist_teacher_budget), and a student copies a teacher that
+    # balances better than one that does not.
+    teacher_snapshots: int = 0
+    teacher_select_episodes: int = 10
     # Asymmetric SAC baseline (pixel actor, state critic): the same environment steps and
     # training DR as the pixel Dreamers; one SAC update of sac_batch transitions per
     # sac_train_every agent steps (an update costs about a tenth of a pixel-Dreamer one)
@@ -204,7 +214,7 @@ class Config:
                        "slice_len", "slices", "student_slice_len", "student_slices", "horizon",
                        "sac_train_every", "sac_batch",
                        "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
-                       "actor_lr", "critic_lr", "jobs")
+                       "actor_lr", "critic_lr", "jobs", "teacher_select_episodes")
         unknown = [name for name in self.students if name not in STUDENTS]
         check(self.students and not unknown and len(set(self.students)) == len(self.students),
               "students", f"need distinct names from {list(STUDENTS)}, got {self.students}")
@@ -219,7 +229,7 @@ class Config:
         check_positive(self, "readout_student_lr", "readout_student_slices")
         check_positive(self, "prefill_steps", "student_updates", "action_noise_std",
                        "readout_student_updates", "readout_student_reading_noise",
-                       "teacher_actor_noise",
+                       "teacher_actor_noise", "teacher_snapshots",
                        "student_shift_pad", "student_rotate_deg", allow_zero=True)
         check(self.camera_id is None or self.camera_id >= 0, "camera_id",
               f"must be >= 0 or None, got {self.camera_id}")
@@ -234,6 +244,9 @@ class Config:
         check(self.student_shift_per in ("sequence", "frame"), "student_shift_per",
               f"must be 'sequence' or 'frame', got {self.student_shift_per!r}")
         check_builds("online budget", self.online)
+        check(self.teacher_snapshots <= self.online().episodes, "teacher_snapshots",
+              f"the teacher trains {self.online().episodes} episodes, so at most that many "
+              f"snapshots, got {self.teacher_snapshots}")
         check_builds("dreamer", self.dreamer)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
@@ -320,14 +333,44 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
     out = train_dreamer_online(agent, env, cfg.online(), stage_dir,
                                dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}",
                                seed=stage_seed(seed, f"{task}/teacher"),
-                               logger=make_logger(cfg.logger, cfg.output_dir))
+                               logger=make_logger(cfg.logger, cfg.output_dir),
+                               snapshots=cfg.teacher_snapshots)
     env.close()
+    checkpoint, selection = stage_dir / "agent.pt", None
+    if cfg.teacher_snapshots:
+        selection = select_teacher(cfg, task, seed, snapshot_paths(stage_dir))
+        checkpoint = Path(selection["chosen"])
+        agent.load_state_dict(load_checkpoint(checkpoint)["agent"])
     # a self-describing file for recipes/evaluate.py (agent.pt is the training checkpoint)
     agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
-    return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
-            "agent": str(stage_dir / "teacher_agent.pt"),
+    return {"checkpoint": str(checkpoint), "data": str(stage_dir),
+            "agent": str(stage_dir / "teacher_agent.pt"), "selection": selection,
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
+
+
+def select_teacher(cfg: Config, task: str, seed: int, snapshots: list[Path]) -> dict:
+    """The snapshot (a training checkpoint) whose deterministic policy has the best mean
+    return over ``cfg.teacher_select_episodes`` state episodes on validation seeds drawn
+    for this purpose (not the evaluation's ``seed + 10000``); ties go to the later one.
+
+    Returns:
+        ``{"chosen": path, "candidates": [{"snapshot": path, "mean": ..., "std": ...}]}``.
+    """
+    if not snapshots:
+        raise RuntimeError("teacher selection: the teacher stage kept no snapshot")
+    validation_seed = stage_seed(seed, f"{task}/teacher_selection")
+    candidates = []
+    for path in snapshots:
+        agent = teacher_agent(cfg, task)
+        agent.load_state_dict(load_checkpoint(path)["agent"])
+        stats = evaluate_returns(task, agent.policy(explore=False), agent.make_primer(),
+                                 validation_seed, cfg.teacher_select_episodes, cfg.eval_steps,
+                                 pixels=False, visual=None)
+        candidates.append({"snapshot": str(path), "mean": stats["mean"], "std": stats["std"]})
+        print(f"teacher selection {task} s{seed}: {path.name} {stats['mean']:.1f}", flush=True)
+    best = max(range(len(candidates)), key=lambda i: (candidates[i]["mean"], i))
+    return {"chosen": candidates[best]["snapshot"], "candidates": candidates}
 
 
 def load_teacher(cfg: Config, task: str, teacher: dict) -> DreamerAgent:
