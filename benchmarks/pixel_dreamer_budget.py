@@ -52,7 +52,8 @@ def main(argv=None) -> None:
     torch.set_num_threads(args.threads)
     cfg = recipe.Config(**{**recipe.PRESETS[args.preset], "tasks": [args.task],
                            "seeds": [args.seed], "env_steps": args.steps,
-                           "pixel_train_every": args.train_every, "output_dir": args.out})
+                           "pixel_train_every": args.train_every, "output_dir": args.out,
+                           "teacher_snapshots": 0})  # no teacher here: any --steps
     name = "dreamer_dr" if args.dr else "dreamer_no_dr"
     stage_dir = Path(args.out) / f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
     start = time.perf_counter()

@@ -74,8 +74,9 @@ def main(argv=None) -> None:
     if args.chunk < 1 or args.steps < args.chunk:
         parser.error("need 1 <= --chunk <= --steps")
     torch.set_num_threads(args.threads)
+    # the curve of the last weights at each budget: no snapshot selection
     cfg = recipe.Config(**{**recipe.PRESETS[args.preset], "tasks": [args.task],
-                           "seeds": args.seeds})
+                           "seeds": args.seeds, "teacher_snapshots": 0})
     out = Path(args.out)
     results = {"references": {}, "curves": {}}
     for seed in args.seeds:

@@ -446,23 +446,22 @@ def test_teacher_actor_noise_reaches_only_the_teachers_actor_critic():
 def test_teacher_selection_deploys_the_best_validated_snapshot(tmp_path):
     import pytest
 
+    from simdist.utils import load_checkpoint
     from simdist.utils.cli import ConfigError
 
     recipe = _recipe_module()
-    assert recipe.Config().teacher_snapshots == 0  # TWIST's teacher (the last weights)
     with pytest.raises(ConfigError, match="at most that many snapshots"):
-        recipe.Config(**recipe.PRESETS["tiny"], teacher_snapshots=3)  # 2 episodes
+        recipe.Config(**{**recipe.PRESETS["tiny"], "teacher_snapshots": 3})  # 2 episodes
     with pytest.raises(ConfigError, match="teacher_select_episodes"):
         recipe.Config(teacher_select_episodes=0)
     proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
-                "--no-record", "--students", "twist", "--teacher-snapshots", 2)
+                "--no-record", "--students", "twist")  # the tiny preset keeps 2 snapshots
     assert proc.returncode == 0, proc.stderr
     run = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"]
     teacher = run["teacher"]
     candidates = teacher["selection"]["candidates"]
-    assert len(candidates) == 2 and teacher["checkpoint"] == teacher["selection"]["chosen"]
     best = max(candidates, key=lambda c: c["mean"])
-    assert teacher["checkpoint"] == best["snapshot"]
+    assert len(candidates) == 2 and teacher["selection"]["chosen"] == best["snapshot"]
     # the chosen snapshot's validation figure is reproduced by evaluating it again
     cfg = recipe.Config(**recipe.PRESETS["tiny"])
     agent = recipe.load_teacher(cfg, "cartpole-balance", teacher)
@@ -471,19 +470,12 @@ def test_teacher_selection_deploys_the_best_validated_snapshot(tmp_path):
         recipe.stage_seed(0, "cartpole-balance/teacher_selection"), cfg.teacher_select_episodes,
         cfg.eval_steps, pixels=False, visual=None)
     assert again["mean"] == pytest.approx(best["mean"], rel=1e-5)
-    # the deployable teacher file and the Oracle are that snapshot, not the last weights
-    saved = load_agent(teacher["agent"])
-    chosen = load_checkpoint_weights(teacher["checkpoint"])
-    assert all(torch.equal(saved.actor.state_dict()[k], v) for k, v in chosen.items())
+    # the deployed teacher file (what the Oracle and the students load) is that snapshot
+    chosen = load_checkpoint(best["snapshot"])["weights"]["actor"]
+    assert all(torch.equal(agent.actor.state_dict()[k], v) for k, v in chosen.items())
     oracle = recipe.evaluate(cfg, "cartpole-balance", 0, agent.policy(explore=False),
                              agent.make_primer(), pixels=False)
     assert oracle["returns"] == pytest.approx(run["Oracle (state teacher)"]["returns"])
-
-
-def load_checkpoint_weights(path):
-    from simdist.utils import load_checkpoint
-
-    return load_checkpoint(path)["agent"]["actor"]
 
 
 def test_teacher_selection_prefers_an_earlier_snapshot_that_scores_higher(tmp_path):
@@ -494,14 +486,14 @@ def test_teacher_selection_prefers_an_earlier_snapshot_that_scores_higher(tmp_pa
     recipe = _recipe_module()
     cfg = recipe.Config(**recipe.PRESETS["tiny"])
     calm = recipe.teacher_agent(cfg, "cartpole-balance")
-    save_atomic({"agent": calm.state_dict()}, tmp_path / "00000.pt")
+    save_atomic({"weights": calm.weights()}, tmp_path / "00000.pt")
     # a later snapshot whose actor always pushes at full force pays the control cost
     pushing = recipe.teacher_agent(cfg, "cartpole-balance")
-    pushing.load_state_dict(calm.state_dict())
+    pushing.load_weights(calm.weights())
     last_bias = [k for k in pushing.actor.state_dict() if k.endswith("bias")][-1]
     with torch.no_grad():
         pushing.actor.state_dict()[last_bias].fill_(10.0)
-    save_atomic({"agent": pushing.state_dict()}, tmp_path / "00001.pt")
+    save_atomic({"weights": pushing.weights()}, tmp_path / "00001.pt")
     paths = [tmp_path / "00000.pt", tmp_path / "00001.pt"]
     out = recipe.select_teacher(cfg, "cartpole-balance", 0, paths)
     calm_mean, pushing_mean = (c["mean"] for c in out["candidates"])

@@ -104,10 +104,10 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
     With a TorchRL ``logger``, each update's metrics and each episode's return are logged
     under ``desc/``.
 
-    With ``snapshots = k > 0``, the agent's state after each of the last ``k`` episodes'
-    updates is also kept, as ``stage_dir/snapshots/<episode>.pt`` (``{"agent": ...}``, the
-    checkpoint's format; the last one equals ``agent.pt``), for a caller that picks among
-    them (:func:`snapshot_paths`).
+    With ``snapshots = k > 0``, the agent's weights after each of the last ``k`` episodes'
+    updates are also kept, as ``stage_dir/snapshots/<episode>.pt`` (``{"weights":
+    agent.weights()}``, no optimiser state; the last one is the final agent), for a caller
+    that picks among them (:func:`snapshot_paths`); the agent must have ``weights()``.
 
     Args:
         agent: a :class:`~simdist.agents.DreamerAgent` or any agent with the same verbs
@@ -165,7 +165,7 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
             log_metrics(logger, desc, metrics, len(history))
         if i >= config.episodes - snapshots:  # before the checkpoint: a crash between
             # the two redoes this episode's updates (seeded) and rewrites the same snapshot
-            save_atomic({"agent": agent.state_dict()}, stage_dir / "snapshots" / f"{i:05d}.pt")
+            save_atomic({"weights": agent.weights()}, stage_dir / "snapshots" / f"{i:05d}.pt")
         save_atomic({"agent": agent.state_dict(), "episodes": i + 1, "history": history,
                      "returns": returns}, checkpoint)
         losses = {k: f"{v:.3g}" for k, v in history[-1].items() if k.startswith("loss")}

@@ -50,6 +50,7 @@ import torch
 
 from simdist.agents import (AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgent,
                              DreamerConfig, TwistConfig, TwistStudent)
+from simdist.agents.checkpoint import read_agent_checkpoint
 from simdist.envs import TASKS, VisualRandomisation
 from simdist.modules import (RSSM_SIZES, DreamerWorldModel, PixelEncoder, ReadoutEncoder,
                              ReadingNoise, StateReadout)
@@ -88,10 +89,13 @@ class Config:
     tasks: list[str] = field(default_factory=lambda: ["cartpole-balance"])  # control-suite tasks
     seeds: list[int] = field(default_factory=lambda: [0])  # one chain of stages per task and seed
     model_size: str = "compact"  # RSSM size of teacher, student and pixel Dreamers
-    # online budget: the same environment steps for the teacher and both pixel Dreamers
-    # Measured on cartpole-balance (state teacher, 10 evaluation episodes, seeds 0 / 1):
-    # Oracle 680 / 612 at 6000 steps, *below* doing nothing (746); 919 / 904 at 10000.
-    env_steps: int = 10000
+    # online budget: the same environment steps for the teacher and every online baseline.
+    # Measured on cartpole-balance (state teacher, 10 evaluation episodes): Oracle 680 / 612
+    # at 6000 steps (seeds 0 / 1), *below* doing nothing (746); at 10000 677-939 over seven
+    # teachers, four of them below doing nothing; seeds 1 / 2 went from 704 / 697 at 10000
+    # to 818 / 911 at 11000 and 884 / 932 at 14000 (benchmarks/README.md, "Teacher
+    # selection and a longer teacher").
+    env_steps: int = 12000
     prefill_steps: int = 1000  # random-action steps before the first update
     train_every: int = 2  # teacher: one update per 2 agent steps (measured: 8 does not learn)
     # pixel Dreamers: an update costs ~4x the teacher's on CPU, so they get fewer updates
@@ -161,11 +165,12 @@ class Config:
     # Teacher selection: keep the teacher's weights after each of its last
     # teacher_snapshots training episodes and deploy the snapshot with the best mean return
     # over teacher_select_episodes state episodes on validation seeds of their own (neither
-    # the training nor the evaluation seeds); 0: the last weights, as TWIST. At 10000 steps
-    # a teacher's evaluated return swings by ~100 from one snapshot to the next
-    # (benchmarks/README.md, twist_teacher_budget), and a student copies a teacher that
-    # balances better than one that does not.
-    teacher_snapshots: int = 0
+    # the training nor the evaluation seeds); 0: the last weights, as TWIST. A teacher's
+    # return swings by 100-200 from one snapshot to the next at this budget (seed 3's
+    # validated snapshots 685-901 over its last 10 episodes), and a student copies a teacher
+    # that balances better than one that does not (benchmarks/README.md, "Teacher
+    # selection and a longer teacher"). Costs ~1 s per snapshot on the state env.
+    teacher_snapshots: int = 10
     teacher_select_episodes: int = 10
     # Asymmetric SAC baseline (pixel actor, state critic): the same environment steps and
     # training DR as the pixel Dreamers; one SAC update of sac_batch transitions per
@@ -246,7 +251,8 @@ class Config:
         check_builds("online budget", self.online)
         check(self.teacher_snapshots <= self.online().episodes, "teacher_snapshots",
               f"the teacher trains {self.online().episodes} episodes, so at most that many "
-              f"snapshots, got {self.teacher_snapshots}")
+              f"snapshots, got {self.teacher_snapshots} (lower --teacher-snapshots with "
+              f"--env-steps)")
         check_builds("dreamer", self.dreamer)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
@@ -271,6 +277,7 @@ class Config:
 PRESETS = {
     "default": {},
     "tiny": {"model_size": "tiny", "env_steps": 40, "prefill_steps": 20, "train_every": 10,
+             "teacher_snapshots": 2,
              "pixel_train_every": 10, "sac_train_every": 10, "sac_batch": 4,
              "readout_student_updates": 3, "readout_student_slices": 2,
              "episode_steps": 20, "slice_len": 8, "slices": 2, "student_updates": 3,
@@ -336,23 +343,26 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
                                logger=make_logger(cfg.logger, cfg.output_dir),
                                snapshots=cfg.teacher_snapshots)
     env.close()
-    checkpoint, selection = stage_dir / "agent.pt", None
+    selection = None
     if cfg.teacher_snapshots:
-        selection = select_teacher(cfg, task, seed, snapshot_paths(stage_dir))
-        checkpoint = Path(selection["chosen"])
-        agent.load_state_dict(load_checkpoint(checkpoint)["agent"])
-    # a self-describing file for recipes/evaluate.py (agent.pt is the training checkpoint)
+        selection = select_teacher(cfg, task, seed,
+                                   snapshot_paths(stage_dir)[-cfg.teacher_snapshots:])
+        agent.load_weights(load_checkpoint(selection["chosen"])["weights"], selection["chosen"])
+    # the deployed teacher (the chosen snapshot, or the last weights), self-describing: what
+    # the Oracle, the students and recipes/evaluate.py load (agent.pt is the training
+    # checkpoint, which goes on from the last weights)
     agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
-    return {"checkpoint": str(checkpoint), "data": str(stage_dir),
+    return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
             "agent": str(stage_dir / "teacher_agent.pt"), "selection": selection,
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
 
 
 def select_teacher(cfg: Config, task: str, seed: int, snapshots: list[Path]) -> dict:
-    """The snapshot (a training checkpoint) whose deterministic policy has the best mean
-    return over ``cfg.teacher_select_episodes`` state episodes on validation seeds drawn
-    for this purpose (not the evaluation's ``seed + 10000``); ties go to the later one.
+    """The snapshot (weights the teacher stage kept) whose deterministic policy has the
+    best mean return over ``cfg.teacher_select_episodes`` state episodes on validation
+    seeds drawn for this purpose (not the evaluation's ``seed + 10000``); ties go to the
+    later one.
 
     Returns:
         ``{"chosen": path, "candidates": [{"snapshot": path, "mean": ..., "std": ...}]}``.
@@ -363,7 +373,7 @@ def select_teacher(cfg: Config, task: str, seed: int, snapshots: list[Path]) -> 
     candidates = []
     for path in snapshots:
         agent = teacher_agent(cfg, task)
-        agent.load_state_dict(load_checkpoint(path)["agent"])
+        agent.load_weights(load_checkpoint(path)["weights"], path)
         stats = evaluate_returns(task, agent.policy(explore=False), agent.make_primer(),
                                  validation_seed, cfg.teacher_select_episodes, cfg.eval_steps,
                                  pixels=False, visual=None)
@@ -374,8 +384,9 @@ def select_teacher(cfg: Config, task: str, seed: int, snapshots: list[Path]) -> 
 
 
 def load_teacher(cfg: Config, task: str, teacher: dict) -> DreamerAgent:
+    """The deployed teacher of a finished teacher stage (its ``teacher_agent.pt``)."""
     agent = teacher_agent(cfg, task)
-    agent.load_state_dict(load_checkpoint(teacher["checkpoint"])["agent"])
+    agent.load_weights(read_agent_checkpoint(teacher["agent"])["weights"], teacher["agent"])
     return agent
 
 
