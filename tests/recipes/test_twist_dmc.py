@@ -551,6 +551,29 @@ def test_readout_training_runs_keep_long_runs_inside_the_domain_as_readings():
     assert torch.allclose(runs[1]["next", "pixels"], readout.read(pixels[7:10]))
     assert episode["next", "pixels"].dtype == torch.uint8  # the caller's data is untouched
     assert math.isclose(recipe.readout_training_runs([episode], readout, 6).__len__(), 0)
+    # exact: the same runs, reading the recorded values of the readout's dimensions
+    exact = recipe.readout_training_runs([episode], readout, min_len=3, exact=True)
+    assert [r["action"].flatten().tolist() for r in exact] == [[0, 1, 2, 3, 4], [7, 8, 9]]
+    assert torch.equal(exact[1]["next", "pixels"], state[7:10, :3])
+    assert episode["next", "pixels"].dtype == torch.uint8
+
+
+def test_readout_student_inputs_positions_trains_on_exact_values_and_deploys_on_pixels(
+        tmp_path):
+    import pytest
+
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    assert recipe.Config().readout_student_inputs == "readings"  # the readout's readings
+    with pytest.raises(ConfigError, match="readout_student_inputs"):
+        recipe.Config(readout_student_inputs="state")
+    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
+                "--no-record", "--students", "twist", "--readout-student-inputs", "positions")
+    assert proc.returncode == 0, proc.stderr
+    twist = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"][
+        recipe.TWIST]
+    assert twist["student"] == "readout" and len(twist["returns"]) == 2  # evaluated on pixels
 
 
 def test_committed_cartpole_readout_reads_rendered_poses():

@@ -143,6 +143,11 @@ class Config:
     # ~0.07 of the spread on training scenes (its .json); 0.1 measured worse on seeds 1
     # and 2 (300 / 348 against 353 / 443; benchmarks/README.md)
     readout_student_reading_noise: float = 0.0
+    # what a readout student's state encoder reads in training: "readings", the readout's
+    # readings of D's images (it learns the readout's errors), or "positions", the exact
+    # values of the readout's dimensions that D records (privileged, as the teacher's
+    # state); either way it deploys through the readout, from pixels
+    readout_student_inputs: str = "readings"
     # The teacher stage records D under training randomisation; True adds a camera-pose
     # draw every step (TRAIN_CAMERA_JITTER: 1.5x the evaluation's widths, a margin instead
     # of the test scene's exact range). Not in TWIST's training DR (camera at evaluation
@@ -246,6 +251,9 @@ class Config:
               f"must be one of {PixelEncoder.INPUT_NORMS}, got {self.student_input_norm!r}")
         check(self.student_arch in PixelEncoder.ARCHS, "student_arch",
               f"must be one of {PixelEncoder.ARCHS}, got {self.student_arch!r}")
+        check(self.readout_student_inputs in ("readings", "positions"),
+              "readout_student_inputs",
+              f"must be 'readings' or 'positions', got {self.readout_student_inputs!r}")
         check(self.student_shift_per in ("sequence", "frame"), "student_shift_per",
               f"must be 'sequence' or 'frame', got {self.student_shift_per!r}")
         check_builds("online budget", self.online)
@@ -489,13 +497,26 @@ def with_readings(episode, readout: StateReadout):
     return out
 
 
-def readout_training_runs(episodes: list, readout: StateReadout, min_len: int) -> list:
+def with_positions(episode, readout: StateReadout):
+    """A shallow copy of ``episode`` whose ("next", "pixels") are the exact values of the
+    readout's dimensions, from the recorded state (what a perfect readout would read)."""
+    out = episode.clone(recurse=False)
+    out["next"] = episode["next"].clone(recurse=False)
+    state = episode["next", "state"]
+    out["next", "pixels"] = state.index_select(-1, readout.dims.to(state.device)).float()
+    return out
+
+
+def readout_training_runs(episodes: list, readout: StateReadout, min_len: int,
+                          exact: bool = False) -> list:
     """What a readout student trains on: each run of consecutive steps of ``episodes``
     whose states lie in the readout's fitted domain and that is at least ``min_len`` steps
-    long, as an episode of the readout's readings (:func:`with_readings`). Outside its
-    domain a readout extrapolates, so the student would learn the teacher's latent from
-    readings it cannot trust."""
-    return [with_readings(episode[start:end], readout) for episode in episodes
+    long, as an episode of the readout's readings (:func:`with_readings`), or with
+    ``exact`` of the exact values it reads (:func:`with_positions`). Outside its domain a
+    readout extrapolates, so the student would learn the teacher's latent from readings
+    it cannot trust."""
+    convert = with_positions if exact else with_readings
+    return [convert(episode[start:end], readout) for episode in episodes
             for start, end in mask_runs(readout.covers(episode["next", "state"]), min_len)]
 
 
@@ -510,7 +531,8 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
     if isinstance(twist.student.encoder, ReadoutEncoder):
         readout, updates = twist.student.encoder.readout, cfg.readout_student_updates
         slices = cfg.readout_student_slices
-        episodes = readout_training_runs(episodes, readout, cfg.student_slice_len)
+        episodes = readout_training_runs(episodes, readout, cfg.student_slice_len,
+                                         exact=cfg.readout_student_inputs == "positions")
         if not episodes:
             raise RuntimeError(f"the teacher's data holds no run of {cfg.student_slice_len} "
                                f"steps inside the readout's domain {readout.domain}: "
