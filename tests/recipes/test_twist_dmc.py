@@ -558,18 +558,17 @@ def test_readout_training_runs_keep_long_runs_inside_the_domain_as_readings():
     assert episode["next", "pixels"].dtype == torch.uint8
 
 
-def test_readout_student_inputs_positions_trains_on_exact_values_and_deploys_on_pixels(
-        tmp_path):
+def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tmp_path):
     import pytest
 
     from simdist.utils.cli import ConfigError
 
     recipe = _recipe_module()
-    assert recipe.Config().readout_student_inputs == "readings"  # the readout's readings
+    assert recipe.Config().readout_student_inputs == "positions"  # D's exact values
     with pytest.raises(ConfigError, match="readout_student_inputs"):
         recipe.Config(readout_student_inputs="state")
     proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
-                "--no-record", "--students", "twist", "--readout-student-inputs", "positions")
+                "--no-record", "--students", "twist", "--readout-student-inputs", "readings")
     assert proc.returncode == 0, proc.stderr
     twist = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"][
         recipe.TWIST]
