@@ -407,7 +407,8 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
         return original_env(*args, **kwargs)
 
     def eval_spy(*args, **kwargs):
-        cameras.append(("evaluate", kwargs.get("camera_id")))
+        if kwargs.get("pixels", args[6] if len(args) > 6 else False):  # not the state
+            cameras.append(("evaluate", kwargs.get("camera_id")))  # teacher's selection
         return original_eval(*args, **kwargs)
     recipe.control_env, recipe.evaluate_returns = env_spy, eval_spy
     try:
