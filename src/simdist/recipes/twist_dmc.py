@@ -381,9 +381,8 @@ def select_teacher(cfg: Config, task: str, seed: int, snapshots: list[Path]) -> 
     if not snapshots:
         raise RuntimeError("teacher selection: the teacher stage kept no snapshot")
     validation_seed = stage_seed(seed, f"{task}/teacher_selection")
-    candidates = []
+    candidates, agent = [], teacher_agent(cfg, task)
     for path in snapshots:
-        agent = teacher_agent(cfg, task)
         agent.load_weights(load_checkpoint(path)["weights"], path)
         stats = evaluate_returns(task, agent.policy(explore=False), agent.make_primer(),
                                  validation_seed, cfg.teacher_select_episodes, cfg.eval_steps,
@@ -494,19 +493,22 @@ def with_readings(episode, readout: StateReadout):
     """A shallow copy of ``episode`` whose ("next", "pixels") are ``readout``'s readings of
     them (the images are read once: the readout is frozen, so a student trains on the same
     batches as if it read them at every update)."""
-    out = episode.clone(recurse=False)
-    out["next"] = episode["next"].clone(recurse=False)
-    out["next", "pixels"] = readout.read(episode["next", "pixels"])
-    return out
+    return _with_pixels(episode, readout.read(episode["next", "pixels"]))
 
 
 def with_positions(episode, readout: StateReadout):
     """A shallow copy of ``episode`` whose ("next", "pixels") are the exact values of the
     readout's dimensions, from the recorded state (what a perfect readout would read)."""
+    state = episode["next", "state"]
+    return _with_pixels(episode, state.index_select(-1, readout.dims.to(state.device)).float())
+
+
+def _with_pixels(episode, pixels: torch.Tensor):
+    """A shallow copy of ``episode`` with ("next", "pixels") replaced (the caller's
+    episode is left as it was)."""
     out = episode.clone(recurse=False)
     out["next"] = episode["next"].clone(recurse=False)
-    state = episode["next", "state"]
-    out["next", "pixels"] = state.index_select(-1, readout.dims.to(state.device)).float()
+    out["next", "pixels"] = pixels
     return out
 
 
