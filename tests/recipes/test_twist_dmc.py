@@ -53,6 +53,19 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     for name in ("TWIST (student)", "TWIST w/o imagined alignment", "TWIST w/o action noise"):
         assert run[name]["student"] == "readout" and run[name]["updates"] == 3
         assert run[name]["readout"].endswith("twist_readout/cartpole-balance.pt")
+        # two candidates (all of D / its domain runs), validated; the better one deployed
+        candidates = run[name]["candidates"]
+        assert list(candidates) == ["all", "domain"]
+        best = max(candidates, key=lambda n: (candidates[n]["validation"]["mean"],
+                                              -list(candidates).index(n)))
+        assert run[name]["chosen"] == best and run[name]["states"] == best
+    stages = tmp_path / "stages"
+    every = json.loads((stages / "cartpole-balance_s0_twist_all.json").read_text())["result"]
+    assert every["train_steps"] == 40  # exact positions: every step of D, domain or not
+    assert len(every["validation"]["returns"]) == results["config"]["student_select_episodes"]
+    chosen = run["TWIST (student)"]["chosen"]
+    assert (stages / "cartpole-balance_s0_twist" / "student.pt").read_bytes() == (
+        stages / f"cartpole-balance_s0_twist_{chosen}" / "student.pt").read_bytes()
     assert load_agent(tmp_path / "stages" / "cartpole-balance_s0_twist" /
                       "student_agent.pt").student.encoder.readout.out_dim == 3
     assert (tmp_path / "returns.png").stat().st_size > 0
@@ -62,8 +75,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
 
     # every training loop logged its updates, from both worker processes
     scalars = tmp_path / "logs" / "scalars"
-    assert (scalars / "cartpole-balance_s0_twist" / "loss_distill.csv").exists() or \
-        list((scalars / "cartpole-balance_s0_twist").glob("*.csv"))
+    assert list((scalars / "cartpole-balance_s0_twist_all").glob("*.csv"))
+    assert list((scalars / "cartpole-balance_s0_twist_domain").glob("*.csv"))
     assert list((scalars / "cartpole-balance_s0_dreamer_dr").glob("*.csv"))
     # the State Recon. baseline stored the state of each step and learned to decode it
     recon = tmp_path / "stages" / "cartpole-balance_s0_dreamer_state_recon"
@@ -84,7 +97,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
 
     again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1)  # in-process
     assert again.returncode == 0, again.stderr
-    assert again.stdout.count("already done") == 11  # 10 stages per task-seed + recording
+    # 10 stages per task-seed, 2 candidates for each of the 3 students, and the recording
+    assert again.stdout.count("already done") == 17
     changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
     assert changed.returncode != 0 and "different config" in changed.stderr
 
@@ -557,6 +571,63 @@ def test_readout_training_runs_keep_long_runs_inside_the_domain_as_readings():
     assert [r["action"].flatten().tolist() for r in exact] == [[0, 1, 2, 3, 4], [7, 8, 9]]
     assert torch.equal(exact[1]["next", "pixels"], state[7:10, :3])
     assert episode["next", "pixels"].dtype == torch.uint8
+    # everywhere: the whole episode, its out-of-domain steps included, as exact values
+    whole = recipe.readout_training_runs([episode, episode[:2]], readout, min_len=3,
+                                         exact=True, everywhere=True)
+    assert len(whole) == 1 and torch.equal(whole[0]["action"], episode["action"])
+    assert torch.equal(whole[0]["next", "pixels"], state[:, :3])
+    assert episode["next", "pixels"].dtype == torch.uint8
+    import pytest
+
+    with pytest.raises(ValueError, match="needs exact=True"):
+        recipe.readout_training_runs([episode], readout, min_len=3, everywhere=True)
+
+
+def test_readout_student_states_config_and_selection():
+    import pytest
+
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    assert recipe.Config().readout_student_states == ["all", "domain"]  # two candidates
+    assert recipe.Config(readout_student_states=["domain"]).readout_student_states == ["domain"]
+    for bad in (["everything"], [], ["all", "all"], ["all", "domain", "all"]):
+        with pytest.raises(ConfigError, match="readout_student_states: must be one or two"):
+            recipe.Config(readout_student_states=bad)
+    with pytest.raises(ConfigError, match="readout_student_states: 'all' needs"):
+        recipe.Config(readout_student_inputs="readings")
+    with pytest.raises(ConfigError, match="student_select_episodes"):
+        recipe.Config(student_select_episodes=0)
+    # one entry, or no readout (the CNN student): a single student, no candidate stages
+    assert recipe.student_candidates(recipe.Config(), "cartpole-balance") == ["all", "domain"]
+    assert recipe.student_candidates(recipe.Config(readout_student_states=["all"]),
+                                     "cartpole-balance") == []
+    assert recipe.student_candidates(recipe.Config(student_readout="none"),
+                                     "cartpole-balance") == []
+    # the best validation mean wins; a tie goes to the earlier candidate
+    score = {"all": {"validation": {"mean": 700.0}}, "domain": {"validation": {"mean": 900.0}}}
+    assert recipe.select_student(score) == "domain"
+    score["domain"]["validation"]["mean"] = 700.0
+    assert recipe.select_student(score) == "all"
+
+
+def test_exact_positions_feeds_the_student_the_readouts_dimensions_of_the_state():
+    from tensordict import TensorDict
+
+    from simdist.agents import DreamerAgent, DreamerConfig, TwistStudent
+    from simdist.modules import DreamerWorldModel, PixelEncoder, StateReadout
+
+    recipe = _recipe_module()
+    teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+    readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 2])
+    twist = TwistStudent(teacher, DreamerWorldModel.readout_student(readout, 1, "tiny"))
+    seen = []
+    twist.student.encoder.register_forward_hook(lambda m, args, out: seen.append(args[0]))
+    state = torch.randn(3, 5)
+    td = recipe.ExactPositions(twist, readout.dims.tolist())(
+        TensorDict({"state": state, "is_init": torch.ones(3, 1, dtype=torch.bool)}, [3]))
+    assert torch.equal(seen[0], state[:, [0, 2]])  # exact values, no render, no readout
+    assert td["action"].shape == (3, 1) and "positions" not in td.keys()
 
 
 def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tmp_path):
@@ -569,7 +640,8 @@ def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tm
     with pytest.raises(ConfigError, match="readout_student_inputs"):
         recipe.Config(readout_student_inputs="state")
     proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
-                "--no-record", "--students", "twist", "--readout-student-inputs", "readings")
+                "--no-record", "--students", "twist", "--readout-student-inputs", "readings",
+                "--readout-student-states", "domain")
     assert proc.returncode == 0, proc.stderr
     twist = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"][
         recipe.TWIST]

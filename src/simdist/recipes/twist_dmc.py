@@ -41,15 +41,18 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
+from tensordict.nn import TensorDictModuleBase
 
 from simdist.agents import (AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgent,
                              DreamerConfig, TwistConfig, TwistStudent)
+from simdist.agents.dreamer import DreamerPolicy
 from simdist.agents.checkpoint import read_agent_checkpoint
 from simdist.envs import TASKS, VisualRandomisation
 from simdist.modules import (RSSM_SIZES, DreamerWorldModel, PixelEncoder, ReadoutEncoder,
@@ -151,6 +154,17 @@ class Config:
     # longer teacher"): 76% [71, 82] of the Oracle against 68% [61, 73]; per seed +4,
     # +243, -220, +289 points of return, so not separated over seeds.
     readout_student_inputs: str = "positions"
+    # which of D's steps a readout student trains on: "domain", the runs whose states lie
+    # in the readout's fitted domain (StateReadout.covers); "all", every step of D (only
+    # with exact positions: outside its domain the readout's readings are extrapolations,
+    # D's recorded values are not). Two entries: one candidate student on each (separate
+    # stages, side by side with --jobs 2), and the one with the better validation return
+    # is deployed (select_student: exact positions in the simulator, validation seeds).
+    # Measured, five seeds of 12000-step teachers (benchmarks/README.md, "Which of D a
+    # readout student trains on, and choosing between two"): per seed the two sets differ
+    # by -349 to +281 points with equal means, and validation picks the better one.
+    readout_student_states: list[str] = field(default_factory=lambda: ["all", "domain"])
+    student_select_episodes: int = 10  # validation episodes per candidate student
     # The teacher stage records D under training randomisation; True adds a camera-pose
     # draw every step (TRAIN_CAMERA_JITTER: 1.5x the evaluation's widths, a margin instead
     # of the test scene's exact range). Not in TWIST's training DR (camera at evaluation
@@ -257,6 +271,17 @@ class Config:
         check(self.readout_student_inputs in ("readings", "positions"),
               "readout_student_inputs",
               f"must be 'readings' or 'positions', got {self.readout_student_inputs!r}")
+        states = tuple(self.readout_student_states)
+        check(len(states) in (1, 2) and len(set(states)) == len(states)
+              and set(states) <= {"domain", "all"}, "readout_student_states",
+              f"must be one or two distinct of 'domain', 'all', got {states!r}")
+        check("all" not in states or self.readout_student_inputs == "positions",
+              "readout_student_states",
+              "'all' needs readout_student_inputs='positions' (outside its fitted domain the "
+              "readout's readings are extrapolations, not something to train on): pass "
+              "--readout-student-states domain with readings")
+        check(self.student_select_episodes > 0, "student_select_episodes",
+              f"must be > 0, got {self.student_select_episodes}")
         check(self.student_shift_per in ("sequence", "frame"), "student_shift_per",
               f"must be 'sequence' or 'frame', got {self.student_shift_per!r}")
         check_builds("online budget", self.online)
@@ -513,31 +538,41 @@ def _with_pixels(episode, pixels: torch.Tensor):
 
 
 def readout_training_runs(episodes: list, readout: StateReadout, min_len: int,
-                          exact: bool = False) -> list:
+                          exact: bool = False, everywhere: bool = False) -> list:
     """What a readout student trains on: each run of consecutive steps of ``episodes``
     whose states lie in the readout's fitted domain and that is at least ``min_len`` steps
     long, as an episode of the readout's readings (:func:`with_readings`), or with
     ``exact`` of the exact values it reads (:func:`with_positions`). Outside its domain a
     readout extrapolates, so the student would learn the teacher's latent from readings
-    it cannot trust."""
+    it cannot trust. ``everywhere`` (with ``exact`` only): every episode whole, domain or
+    not (the recorded values are exact everywhere)."""
+    if everywhere and not exact:
+        raise ValueError("everywhere=True needs exact=True: outside its fitted domain the "
+                         "readout's readings are extrapolations")
     convert = with_positions if exact else with_readings
+    if everywhere:
+        return [convert(episode, readout) for episode in episodes if len(episode) >= min_len]
     return [convert(episode[start:end], readout) for episode in episodes
             for start, end in mask_runs(readout.covers(episode["next", "state"]), min_len)]
 
 
-def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
-                  stage_dir: Path) -> dict:
-    """Distils a student from the frozen teacher on ``D``, then evaluates it from pixels."""
+def train_student(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
+                  stage_dir: Path, states: str | None = None) -> tuple[TwistStudent, dict]:
+    """Distils a student from the frozen teacher on ``D`` (resumable from
+    ``stage_dir/student.pt``); a readout student trains on the ``states`` of D ("all" or
+    "domain"; default: the config's first). Returns the student and what it trained on."""
     torch.manual_seed(seed)
     agent = load_teacher(cfg, task, teacher)
     twist = build_student(cfg, task, agent, overrides)
     episodes = [e.to_tensordict() for e in load_episodes(teacher["data"])]
     readout, updates, slices = None, cfg.student_updates, cfg.student_slices
+    states = states or cfg.readout_student_states[0]
     if isinstance(twist.student.encoder, ReadoutEncoder):
         readout, updates = twist.student.encoder.readout, cfg.readout_student_updates
         slices = cfg.readout_student_slices
         episodes = readout_training_runs(episodes, readout, cfg.student_slice_len,
-                                         exact=cfg.readout_student_inputs == "positions")
+                                         exact=cfg.readout_student_inputs == "positions",
+                                         everywhere=states == "all")
         if not episodes:
             raise RuntimeError(f"the teacher's data holds no run of {cfg.student_slice_len} "
                                f"steps inside the readout's domain {readout.domain}: "
@@ -550,15 +585,107 @@ def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: d
                               every=max(1, updates // 10),
                               desc=f"{stage_dir.name}", seed=stage_seed(seed, stage_dir.name),
                               logger=make_logger(cfg.logger, cfg.output_dir))
+    return twist, {"checkpoint": str(stage_dir / "student.pt"), "updates": updates,
+                   "student": "readout" if readout is not None else "cnn",
+                   "readout": str(readout_file(cfg, task)) if readout is not None else None,
+                   "states": states if readout is not None else None,
+                   "train_steps": len(replay),
+                   "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
+
+
+def deploy_student(cfg: Config, task: str, seed: int, twist: TwistStudent, trained: dict,
+                   stage_dir: Path) -> dict:
+    """Saves the student as a deployable agent and evaluates it from pixels."""
     # deployable alone (carries the teacher's actor): recipes/evaluate.py --checkpoint
     twist.save(stage_dir / "student_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
     result = evaluate(cfg, task, seed, twist.policy(), twist.make_primer(), pixels=True)
-    return {**result, "checkpoint": str(stage_dir / "student.pt"),
-            "agent": str(stage_dir / "student_agent.pt"), "updates": updates,
-            "student": "readout" if readout is not None else "cnn",
-            "readout": str(readout_file(cfg, task)) if readout is not None else None,
-            "train_steps": len(replay),
-            "first": mean_metrics(history[:10], 10), "last": mean_metrics(history, 50)}
+    return {**result, **trained, "agent": str(stage_dir / "student_agent.pt")}
+
+
+def student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
+                  stage_dir: Path) -> dict:
+    """Distils a student from the frozen teacher on ``D``, then evaluates it from pixels."""
+    twist, trained = train_student(cfg, task, seed, teacher, overrides, stage_dir)
+    return deploy_student(cfg, task, seed, twist, trained, stage_dir)
+
+
+class ExactPositions(TensorDictModuleBase):
+    """A readout student's policy fed the exact values of its readout's dimensions from
+    the simulator's ``"state"`` (perfect perception): validates what distillation taught
+    the student without rendering.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> from simdist.modules import PixelEncoder
+        >>> teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+        >>> readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
+        >>> twist = TwistStudent(teacher, DreamerWorldModel.readout_student(readout, 1, "tiny"))
+        >>> policy = ExactPositions(twist, [0, 1, 2])
+        >>> td = policy(TensorDict({"state": torch.zeros(2, 5),
+        ...                         "is_init": torch.ones(2, 1, dtype=torch.bool)}, [2]))
+        >>> td["action"].shape
+        torch.Size([2, 1])
+    """
+
+    def __init__(self, twist: TwistStudent, dims):
+        super().__init__()
+        self.policy = DreamerPolicy(twist.student, twist.teacher.actor, "positions",
+                                    explore=False)
+        self.register_buffer("dims", torch.as_tensor(list(dims), dtype=torch.long))
+        self.in_keys = ["state", *[k for k in self.policy.in_keys if k != "positions"]]
+        self.out_keys = list(self.policy.out_keys)
+
+    def forward(self, td):
+        td.set("positions", td["state"].index_select(-1, self.dims).float())
+        return self.policy(td).exclude("positions")
+
+
+def validate_student(cfg: Config, task: str, seed: int, twist: TwistStudent) -> dict:
+    """Mean return of a readout student fed exact positions (:class:`ExactPositions`) on
+    ``cfg.student_select_episodes`` state episodes of validation seeds drawn for this
+    purpose (neither training nor the evaluation's ``seed + 10000``)."""
+    readout = twist.student.encoder.readout
+    stats = evaluate_returns(task, ExactPositions(twist, readout.dims.tolist()),
+                             twist.make_primer(), stage_seed(seed, f"{task}/student_selection"),
+                             cfg.student_select_episodes, cfg.eval_steps, pixels=False,
+                             visual=None)
+    return {"mean": stats["mean"], "std": stats["std"], "returns": stats["returns"]}
+
+
+def candidate_student_stage(cfg: Config, task: str, seed: int, teacher: dict,
+                            overrides: dict, states: str, stage_dir: Path) -> dict:
+    """One candidate readout student, trained on ``states`` of D and validated."""
+    twist, trained = train_student(cfg, task, seed, teacher, overrides, stage_dir, states)
+    validation = validate_student(cfg, task, seed, twist)
+    print(f"candidate {stage_dir.name}: validation {validation['mean']:.1f}", flush=True)
+    return {**trained, "validation": validation}
+
+
+def select_student(candidates: dict[str, dict]) -> str:
+    """The candidate (name -> its stage result) with the best validation mean; ties go to
+    the earlier one in ``candidates``' order."""
+    names = list(candidates)
+    return max(names, key=lambda n: (candidates[n]["validation"]["mean"], -names.index(n)))
+
+
+def selected_student_stage(cfg: Config, task: str, seed: int, teacher: dict, overrides: dict,
+                           candidates: dict[str, dict], stage_dir: Path) -> dict:
+    """Deploys the candidate student with the best validation return (its weights copied
+    into this stage as ``student.pt``) and evaluates it from pixels."""
+    chosen = select_student(candidates)
+    torch.manual_seed(seed)
+    twist = build_student(cfg, task, load_teacher(cfg, task, teacher), overrides)
+    state = load_checkpoint(candidates[chosen]["checkpoint"])
+    twist.load_state_dict(state["state"]["twist"])
+    stage_dir.mkdir(parents=True, exist_ok=True)  # the recording reads the stage's student.pt
+    shutil.copyfile(candidates[chosen]["checkpoint"], stage_dir / "student.pt.tmp")
+    os.replace(stage_dir / "student.pt.tmp", stage_dir / "student.pt")
+    trained = {**candidates[chosen], "checkpoint": str(stage_dir / "student.pt"),
+               "chosen": chosen, "candidates": {n: {"checkpoint": c["checkpoint"],
+                                                    "validation": c["validation"]}
+                                                for n, c in candidates.items()}}
+    trained.pop("validation")
+    return deploy_student(cfg, task, seed, twist, trained, stage_dir)
 
 
 def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Path,
@@ -655,14 +782,37 @@ def teacher_chain(cfg: Config, task: str, seed: int) -> None:
     _stage(runner, f"{key}_references", lambda d: references_stage(cfg, task, seed))
 
 
+def student_candidates(cfg: Config, task: str) -> list[str]:
+    """The training sets of the candidate students of ``task`` (several only for a
+    readout student with two ``readout_student_states``)."""
+    if readout_file(cfg, task) is None or len(cfg.readout_student_states) < 2:
+        return []
+    return list(cfg.readout_student_states)
+
+
+def candidate_chain(cfg: Config, task: str, seed: int, suffix: str, states: str) -> None:
+    """One candidate of a student of :data:`STUDENTS`, trained on ``states`` of D."""
+    runner, key = stage_runner(cfg), f"{task}_s{seed}"
+    teacher = runner.result(f"{key}_teacher")
+    _stage(runner, f"{key}_{suffix}_{states}", lambda d: candidate_student_stage(
+        cfg, task, seed, teacher, STUDENTS[suffix][1], states, d))
+
+
 def student_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
     """One student of :data:`STUDENTS` (TWIST or an ablation) distilled from the finished
     teacher of ``task`` and ``seed``: the students of one teacher are independent of each
-    other, so they run side by side."""
+    other, so they run side by side. With candidates (:func:`student_candidates`) it
+    deploys the best of their finished stages."""
     runner, key = stage_runner(cfg), f"{task}_s{seed}"
-    teacher = runner.result(f"{key}_teacher")
+    teacher, overrides = runner.result(f"{key}_teacher"), STUDENTS[suffix][1]
+    names = student_candidates(cfg, task)
+    if names:
+        candidates = {n: runner.result(f"{key}_{suffix}_{n}") for n in names}
+        _stage(runner, f"{key}_{suffix}", lambda d: selected_student_stage(
+            cfg, task, seed, teacher, overrides, candidates, d))
+        return
     _stage(runner, f"{key}_{suffix}",
-           lambda d: student_stage(cfg, task, seed, teacher, STUDENTS[suffix][1], d))
+           lambda d: student_stage(cfg, task, seed, teacher, overrides, d))
 
 
 def pixel_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
@@ -691,8 +841,13 @@ def main(argv=None):
     chains = [(teacher_chain, (cfg, task, seed)) for task in cfg.tasks for seed in cfg.seeds]
     after = [()] * len(chains)
     for i, (task, seed) in enumerate((t, s) for t in cfg.tasks for s in cfg.seeds):
-        chains += [(student_chain, (cfg, task, seed, suffix)) for suffix in cfg.students]
-        after += [(i,)] * len(cfg.students)
+        for suffix in cfg.students:  # candidates (if any) side by side, then the choice
+            first = len(chains)
+            for states in student_candidates(cfg, task):
+                chains.append((candidate_chain, (cfg, task, seed, suffix, states)))
+                after.append((i,))
+            after.append(tuple(range(first, len(chains))) or (i,))
+            chains.append((student_chain, (cfg, task, seed, suffix)))
     stages = {suffix: STUDENTS[suffix][0] for suffix in cfg.students}  # stage -> table row
     if cfg.baselines:
         chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
