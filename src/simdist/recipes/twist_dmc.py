@@ -52,8 +52,8 @@ from tensordict.nn import TensorDictModuleBase
 
 from simdist.agents import (AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgent,
                              DreamerConfig, TwistConfig, TwistStudent)
-from simdist.agents.dreamer import DreamerPolicy
 from simdist.agents.checkpoint import read_agent_checkpoint
+from simdist.agents.dreamer import DreamerPolicy
 from simdist.envs import TASKS, VisualRandomisation
 from simdist.modules import (RSSM_SIZES, DreamerWorldModel, PixelEncoder, ReadoutEncoder,
                              ReadingNoise, StateReadout)
