@@ -624,7 +624,7 @@ def test_exact_positions_feeds_the_student_the_readouts_dimensions_of_the_state(
     seen = []
     twist.student.encoder.register_forward_hook(lambda m, args, out: seen.append(args[0]))
     state = torch.randn(3, 5)
-    td = recipe.ExactPositions(twist, readout.dims.tolist())(
+    td = recipe.ExactPositions(twist)(
         TensorDict({"state": state, "is_init": torch.ones(3, 1, dtype=torch.bool)}, [3]))
     assert torch.equal(seen[0], state[:, [0, 2]])  # exact values, no render, no readout
     assert td["action"].shape == (3, 1) and "positions" not in td.keys()

@@ -524,8 +524,12 @@ def with_readings(episode, readout: StateReadout):
 def with_positions(episode, readout: StateReadout):
     """A shallow copy of ``episode`` whose ("next", "pixels") are the exact values of the
     readout's dimensions, from the recorded state (what a perfect readout would read)."""
-    state = episode["next", "state"]
-    return _with_pixels(episode, state.index_select(-1, readout.dims.to(state.device)).float())
+    return _with_pixels(episode, readout_positions(episode["next", "state"], readout))
+
+
+def readout_positions(state: torch.Tensor, readout: StateReadout) -> torch.Tensor:
+    """The exact values ``[..., len(dims)]`` of the readout's dimensions of ``state``."""
+    return state.index_select(-1, readout.dims.to(state.device)).float()
 
 
 def _with_pixels(episode, pixels: torch.Tensor):
@@ -620,23 +624,23 @@ class ExactPositions(TensorDictModuleBase):
         >>> teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
         >>> readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
         >>> twist = TwistStudent(teacher, DreamerWorldModel.readout_student(readout, 1, "tiny"))
-        >>> policy = ExactPositions(twist, [0, 1, 2])
+        >>> policy = ExactPositions(twist)
         >>> td = policy(TensorDict({"state": torch.zeros(2, 5),
         ...                         "is_init": torch.ones(2, 1, dtype=torch.bool)}, [2]))
         >>> td["action"].shape
         torch.Size([2, 1])
     """
 
-    def __init__(self, twist: TwistStudent, dims):
+    def __init__(self, twist: TwistStudent):
         super().__init__()
+        self.readout = twist.student.encoder.readout
         self.policy = DreamerPolicy(twist.student, twist.teacher.actor, "positions",
                                     explore=False)
-        self.register_buffer("dims", torch.as_tensor(list(dims), dtype=torch.long))
         self.in_keys = ["state", *[k for k in self.policy.in_keys if k != "positions"]]
         self.out_keys = list(self.policy.out_keys)
 
     def forward(self, td):
-        td.set("positions", td["state"].index_select(-1, self.dims).float())
+        td.set("positions", readout_positions(td["state"], self.readout))
         return self.policy(td).exclude("positions")
 
 
@@ -644,8 +648,7 @@ def validate_student(cfg: Config, task: str, seed: int, twist: TwistStudent) -> 
     """Mean return of a readout student fed exact positions (:class:`ExactPositions`) on
     ``cfg.student_select_episodes`` state episodes of validation seeds drawn for this
     purpose (neither training nor the evaluation's ``seed + 10000``)."""
-    readout = twist.student.encoder.readout
-    stats = evaluate_returns(task, ExactPositions(twist, readout.dims.tolist()),
+    stats = evaluate_returns(task, ExactPositions(twist),
                              twist.make_primer(), stage_seed(seed, f"{task}/student_selection"),
                              cfg.student_select_episodes, cfg.eval_steps, pixels=False,
                              visual=None)
