@@ -154,7 +154,7 @@ def train_readout(args, cfg, episodes: list) -> StateReadout:
     """The probe's CNN and head trained on the images and states of ``episodes``
     (``--warm-updates`` updates of ``--batch`` images, ``--shift`` per image, Adam at
     ``--lr``), then frozen to read the ``--positions`` dimensions."""
-    pixels = torch.cat([e["next", "pixels"] for e in episodes])
+    pixels = torch.cat([recipe.recorded_images(e) for e in episodes])
     states = torch.cat([e["next", "state"] for e in episodes])
     if args.extra_renders:  # each training state rendered K more times, other draws
         path = args.work / "probe_renders" / f"readout_extra{args.extra_renders}_{args.name}.pt"
@@ -193,7 +193,7 @@ def readout_precision(args, cfg, readout: StateReadout, recorded: list) -> dict:
     balancing states (up to 1000, cartpole): D's own images (training randomisation) and
     the same states re-rendered under the evaluation's held-out scenes."""
     states = torch.cat([e["next", "state"] for e in recorded])
-    pixels = torch.cat([e["next", "pixels"] for e in recorded])
+    pixels = torch.cat([recipe.recorded_images(e) for e in recorded])
     index = balancing(states).nonzero().flatten()
     index = index[torch.randperm(len(index), generator=torch.Generator().manual_seed(0))[:1000]]
     if not len(index):
@@ -419,7 +419,7 @@ def warm_start(args, twist: TwistStudent, episodes: list) -> None:
     """Trains the student's encoder (+ head) alone to map one image of D to the frozen
     teacher's embedding of the same step's state (standardised per dimension), with the
     student's augmentation applied per image; the RSSM is not touched."""
-    pixels = torch.cat([e["next", "pixels"] for e in episodes])
+    pixels = torch.cat([recipe.recorded_images(e) for e in episodes])
     with torch.no_grad():
         target = twist.teacher.world_model.encoder(torch.cat([e["next", "state"]
                                                               for e in episodes]))
@@ -624,7 +624,7 @@ def probe(args, cfg, teacher_result: dict) -> None:
                          "combined with re-rendered images (--heldout-renders, "
                          "--train-camera, --extra-renders, --render-camera)")
     episodes = [e.to_tensordict() for e in load_episodes(teacher_result["data"])]
-    pixels = torch.cat([e["next", "pixels"].flatten(0, -4) for e in episodes])
+    pixels = torch.cat([recipe.recorded_images(e).flatten(0, -4) for e in episodes])
     states = torch.cat([e["next", "state"].flatten(0, -2) for e in episodes])
     if args.render_camera is not None:  # D's states seen from another camera
         pixels = camera_renders(args, cfg, states, "D_all")

@@ -24,7 +24,9 @@ def _run(*args, timeout=300):
 
 
 def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
-    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 2)
+    # D with its images: the diagnosis below reads them (the default renders none here)
+    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 2,
+                "--teacher-pixels", "always")
     assert proc.returncode == 0, proc.stderr
     results = json.loads((tmp_path / "results.json").read_text())
     task = results["results"]["cartpole-balance"]
@@ -53,11 +55,14 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     for name in ("TWIST (student)", "TWIST w/o imagined alignment", "TWIST w/o action noise"):
         assert run[name]["student"] == "readout" and run[name]["updates"] == 3
         assert run[name]["readout"].endswith("twist_readout/cartpole-balance.pt")
-        # two candidates (all of D / its domain runs), validated; the better one deployed
+        # candidates (all of D / its domain runs / all of D from the last snapshot, here
+        # the deployed one, so skipped), validated; the best one deployed
         candidates = run[name]["candidates"]
-        assert list(candidates) == ["all", "domain"]
-        best = max(candidates, key=lambda n: (candidates[n]["validation"]["mean"],
-                                              -list(candidates).index(n)))
+        assert list(candidates) == ["all", "domain", "last_all"]
+        assert candidates["last_all"]["validation"] is None
+        trained = [n for n in candidates if candidates[n]["validation"] is not None]
+        best = max(trained, key=lambda n: (candidates[n]["validation"]["mean"],
+                                           -trained.index(n)))
         assert run[name]["chosen"] == best and run[name]["states"] == best
     stages = tmp_path / "stages"
     every = json.loads((stages / "cartpole-balance_s0_twist_all.json").read_text())["result"]
@@ -95,10 +100,11 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     # stages ran in two processes (the teacher chain beside the pixel Dreamers)
     assert results["jobs"] == 2 and "wall time this run" in proc.stdout
 
-    again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1)  # in-process
+    again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1,  # in-process
+                 "--teacher-pixels", "always")
     assert again.returncode == 0, again.stderr
-    # 10 stages per task-seed, 2 candidates for each of the 3 students, and the recording
-    assert again.stdout.count("already done") == 17
+    # 10 stages per task-seed, 3 candidates for each of the 3 students, and the recording
+    assert again.stdout.count("already done") == 20
     changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
     assert changed.returncode != 0 and "different config" in changed.stderr
 
@@ -261,7 +267,7 @@ def test_train_camera_records_d_under_camera_randomisation(tmp_path):
         recipe.Config(train_camera="yes")
 
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"], train_camera=True,
-                              output_dir=str(tmp_path), jobs=1)
+                              teacher_pixels="always", output_dir=str(tmp_path), jobs=1)
     seen = []
     original = recipe.control_env
 
@@ -277,6 +283,99 @@ def test_train_camera_records_d_under_camera_randomisation(tmp_path):
     episodes = [e.to_tensordict() for e in load_episodes(tmp_path / "teacher")]
     pixels = torch.cat([e["next", "pixels"] for e in episodes])
     assert pixels.shape[-3:] == (64, 64, 3) and len(pixels) == cfg.env_steps
+
+
+def test_teacher_stage_renders_d_only_when_a_student_reads_it(tmp_path):
+    import dataclasses
+
+    import pytest
+
+    from simdist.pipelines import load_episodes
+    from simdist.utils import load_checkpoint
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    task = "cartpole-balance"
+    assert recipe.Config().teacher_pixels == "auto"
+    assert not recipe.records_images(recipe.Config(), task)  # exact positions: no images
+    assert recipe.records_images(recipe.Config(student_readout="none"), task)  # CNN student
+    assert recipe.records_images(recipe.Config(readout_student_inputs="readings",
+                                               readout_student_states=["domain"],
+                                               student_last_teacher_states=[]), task)
+    assert recipe.records_images(recipe.Config(teacher_pixels="always"), task)
+    with pytest.raises(ConfigError, match="teacher_pixels"):
+        recipe.Config(teacher_pixels="never")
+    tiny = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"],
+                               output_dir=str(tmp_path), jobs=1)
+    without = recipe.teacher_stage(tiny, task, 0, tmp_path / "auto")
+    with_images = recipe.teacher_stage(dataclasses.replace(tiny, teacher_pixels="always"),
+                                       task, 0, tmp_path / "always")
+    assert without["images"] is False and with_images["images"] is True
+    bare = [e.to_tensordict() for e in load_episodes(tmp_path / "auto")]
+    full = [e.to_tensordict() for e in load_episodes(tmp_path / "always")]
+    assert ("next", "pixels") not in bare[0].keys(True) and ("next", "pixels") in full[0].keys(True)
+    with pytest.raises(ValueError, match="holds no images"):  # e.g. the diagnosis's probe
+        recipe.recorded_images(bare[0])
+    assert torch.equal(recipe.recorded_images(full[0]), full[0]["next", "pixels"])
+    # rendering draws nothing the physics or the teacher's training use: the same D, the
+    # same selection and the same deployed teacher, to the bit
+    assert all(torch.equal(a["next", "state"], b["next", "state"]) and
+               torch.equal(a["action"], b["action"]) for a, b in zip(bare, full))
+    assert ([c["mean"] for c in without["selection"]["candidates"]] ==
+            [c["mean"] for c in with_images["selection"]["candidates"]])
+    weights = [load_checkpoint(r["agent"])["weights"] for r in (without, with_images)]
+    assert all(torch.equal(weights[0][part][k], v) for part in weights[1]
+               for k, v in weights[1][part].items())
+
+
+def test_a_candidate_of_the_last_snapshot_deploys_with_that_snapshots_actor(tmp_path):
+    import dataclasses
+
+    import pytest
+
+    from simdist.agents import load_agent
+    from simdist.utils import load_checkpoint
+
+    recipe = _recipe_module()
+    task = "cartpole-balance"
+    assert recipe.Config().student_last_teacher_states == ["all"]
+    assert recipe.student_candidates(recipe.Config(), task) == ["all", "domain", "last_all"]
+    assert recipe.student_candidates(recipe.Config(readout_student_states=["domain"]),
+                                     task) == ["domain", "last_all"]
+    cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"],
+                              output_dir=str(tmp_path), jobs=1)
+    teacher = recipe.teacher_stage(cfg, task, 0, tmp_path / "teacher")
+    first, last = (c["snapshot"] for c in teacher["selection"]["candidates"])
+    overrides = recipe.STUDENTS["twist"][1]
+    # the last snapshot deployed: nothing else to distil from, the candidate is skipped
+    deployed_last = {**teacher, "selection": {**teacher["selection"], "chosen": last}}
+    assert recipe.last_snapshot(deployed_last) is None
+    skipped = recipe.candidate_student_stage(cfg, task, 0, deployed_last, overrides, "all",
+                                             tmp_path / "skipped", snapshot="last")
+    assert skipped["validation"] is None and not (tmp_path / "skipped").exists()
+    # the first snapshot deployed: the candidate learns from the last one's latents
+    teacher = {**teacher, "selection": {**teacher["selection"], "chosen": first}}
+    assert recipe.last_snapshot(teacher) == last
+    best = recipe.candidate_student_stage(cfg, task, 0, teacher, overrides, "all",
+                                          tmp_path / "all")
+    other = recipe.candidate_student_stage(cfg, task, 0, teacher, overrides, "all",
+                                           tmp_path / "last_all", snapshot="last")
+    assert other["teacher_agent"] == str(tmp_path / "last_all" / "teacher_agent.pt")
+    saved = load_checkpoint(other["teacher_agent"])["weights"]["actor"]
+    snapped = load_checkpoint(last)["weights"]["actor"]
+    assert all(torch.equal(saved[k], v) for k, v in snapped.items())
+    candidates = {"all": best, "domain": skipped, "last_all": other}
+    other["validation"] = {**other["validation"], "mean": best["validation"]["mean"] + 1}
+    assert recipe.select_student(candidates) == "last_all"  # the skipped one never
+    deployed = recipe.selected_student_stage(cfg, task, 0, teacher, overrides, candidates,
+                                             tmp_path / "twist")
+    assert deployed["chosen"] == "last_all" and deployed["teacher_agent"] == other["teacher_agent"]
+    actor = load_agent(tmp_path / "twist" / "student_agent.pt").teacher.actor.state_dict()
+    assert all(torch.equal(actor[k], v) for k, v in snapped.items())
+    first_actor = load_checkpoint(first)["weights"]["actor"]
+    assert not all(torch.equal(actor[k], v) for k, v in first_actor.items())
+    with pytest.raises(RuntimeError, match="no trained candidate"):
+        recipe.select_student({"domain": skipped})
 
 
 def test_unknown_task_is_a_clear_error(tmp_path):
@@ -599,9 +698,16 @@ def test_readout_student_states_config_and_selection():
     with pytest.raises(ConfigError, match="student_select_episodes"):
         recipe.Config(student_select_episodes=0)
     # one entry, or no readout (the CNN student): a single student, no candidate stages
-    assert recipe.student_candidates(recipe.Config(), "cartpole-balance") == ["all", "domain"]
-    assert recipe.student_candidates(recipe.Config(readout_student_states=["all"]),
+    assert recipe.student_candidates(recipe.Config(), "cartpole-balance") == [
+        "all", "domain", "last_all"]
+    assert recipe.student_candidates(recipe.Config(readout_student_states=["all"],
+                                                   student_last_teacher_states=[]),
                                      "cartpole-balance") == []
+    for bad in (["everything"], ["all", "all"]):
+        with pytest.raises(ConfigError, match="student_last_teacher_states: must be distinct"):
+            recipe.Config(student_last_teacher_states=bad)
+    with pytest.raises(ConfigError, match="student_last_teacher_states: 'all' needs"):
+        recipe.Config(readout_student_inputs="readings", readout_student_states=["domain"])
     assert recipe.student_candidates(recipe.Config(student_readout="none"),
                                      "cartpole-balance") == []
     # the best validation mean wins; a tie goes to the earlier candidate
@@ -641,7 +747,7 @@ def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tm
         recipe.Config(readout_student_inputs="state")
     proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
                 "--no-record", "--students", "twist", "--readout-student-inputs", "readings",
-                "--readout-student-states", "domain")
+                "--readout-student-states", "domain", "--student-last-teacher-states", "domain")
     assert proc.returncode == 0, proc.stderr
     twist = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"][
         recipe.TWIST]

@@ -164,6 +164,15 @@ class Config:
     # readout student trains on, and choosing between two"): per seed the two sets differ
     # by -349 to +281 points with equal means, and validation picks the better one.
     readout_student_states: list[str] = field(default_factory=lambda: ["all", "domain"])
+    # More candidates, distilled from the teacher's *last* snapshot (one per entry, on
+    # that set of D) when it is not the deployed one; the validation picks among every
+    # candidate, and a chosen one deploys with the actor of the snapshot it learned from.
+    # The snapshot with the best return of its own is not always the one that distils
+    # best: a fresh seed's teacher chose its earliest snapshot (validation 964) and its
+    # students validated at ~400, while students of its later snapshots (802-873, down to
+    # 771 for the last) validated at 668-805, rising with the snapshot (benchmarks/README.md,
+    # "Which snapshot to distil from"). []: candidates of the deployed teacher only.
+    student_last_teacher_states: list[str] = field(default_factory=lambda: ["all"])
     student_select_episodes: int = 10  # validation episodes per candidate student
     # The teacher stage records D under training randomisation; True adds a camera-pose
     # draw every step (TRAIN_CAMERA_JITTER: 1.5x the evaluation's widths, a margin instead
@@ -171,6 +180,14 @@ class Config:
     # only). Measured (benchmarks/README.md, TWIST perception, H1; one seed): probe held-out
     # R^2 (x, cos) at 900 updates .40/.28 vs .47/.31 without; student 245 +- 28 vs 240 +- 44.
     train_camera: bool = False
+    # Whether the teacher stage renders D's images (12000 software renders, ~5 min on one
+    # core at 64 px): "auto" renders them only when a student reads them (the CNN student,
+    # or a readout student trained on "readings"); the default readout student trains on
+    # the exact positions D records and sees pixels only through its frozen readout at
+    # evaluation. The teacher is the same either way (rendering draws no random number
+    # the physics or the teacher's training uses; tested). "always" keeps them for
+    # benchmarks/twist_diagnosis.py and benchmarks/twist_dagger.py, which read them.
+    teacher_pixels: str = "auto"
     # Which of the task model's cameras renders every pixel method's images (D, the pixel
     # Dreamers, SAC, evaluation); None: the task's (DreamerV2's camera 0). Cartpole's
     # camera 1 ("lookatcart") turns to the cart from 2.8 m instead of watching the rail
@@ -279,7 +296,18 @@ class Config:
               "readout_student_states",
               "'all' needs readout_student_inputs='positions' (outside its fitted domain the "
               "readout's readings are extrapolations, not something to train on): pass "
-              "--readout-student-states domain with readings")
+              "--readout-student-states domain --student-last-teacher-states domain with "
+              "readings")
+        last = tuple(self.student_last_teacher_states)
+        check(len(set(last)) == len(last) and set(last) <= {"domain", "all"},
+              "student_last_teacher_states",
+              f"must be distinct entries of 'domain', 'all', got {last!r}")
+        check("all" not in last or self.readout_student_inputs == "positions",
+              "student_last_teacher_states",
+              "'all' needs readout_student_inputs='positions' (pass "
+              "--student-last-teacher-states domain with readings, or none)")
+        check(self.teacher_pixels in ("auto", "always"), "teacher_pixels",
+              f"must be 'auto' or 'always', got {self.teacher_pixels!r}")
         check(self.student_select_episodes > 0, "student_select_episodes",
               f"must be > 0, got {self.student_select_episodes}")
         check(self.student_shift_per in ("sequence", "frame"), "student_shift_per",
@@ -366,15 +394,26 @@ def teacher_agent(cfg: Config, task: str) -> DreamerAgent:
     return DreamerAgent.for_state(*state_dim(task), config).to(cfg.device)
 
 
+def records_images(cfg: Config, task: str) -> bool:
+    """Whether the teacher stage renders D's images: only a student that reads them
+    needs them (the CNN student, or a readout student trained on the readout's readings),
+    unless ``cfg.teacher_pixels`` is ``"always"``."""
+    return (cfg.teacher_pixels == "always" or readout_file(cfg, task) is None
+            or cfg.readout_student_inputs == "readings")
+
+
 def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
-    """State Dreamer that records the domain-randomised image of every step it collects."""
+    """State Dreamer whose collected experience is D, with the domain-randomised image
+    of every step when a student reads them (:func:`records_images`)."""
     torch.manual_seed(seed)
     agent = teacher_agent(cfg, task)
-    env = control_env(task, seed, pixels=True, visual=training_visual(cfg),
+    images = records_images(cfg, task)
+    env = control_env(task, seed, pixels=images, visual=training_visual(cfg) if images else None,
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer(),
                       camera_id=cfg.camera_id)
+    keys = dreamer_keys("state", "pixels") if images else dreamer_keys("state")
     out = train_dreamer_online(agent, env, cfg.online(), stage_dir,
-                               dreamer_keys("state", "pixels"), desc=f"teacher {task} s{seed}",
+                               keys, desc=f"teacher {task} s{seed}",
                                seed=stage_seed(seed, f"{task}/teacher"),
                                logger=make_logger(cfg.logger, cfg.output_dir),
                                snapshots=cfg.teacher_snapshots)
@@ -390,6 +429,7 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
     agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
     return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
             "agent": str(stage_dir / "teacher_agent.pt"), "selection": selection,
+            "images": images,
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
 
@@ -518,7 +558,17 @@ def with_readings(episode, readout: StateReadout):
     """A shallow copy of ``episode`` whose ("next", "pixels") are ``readout``'s readings of
     them (the images are read once: the readout is frozen, so a student trains on the same
     batches as if it read them at every update)."""
-    return _with_pixels(episode, readout.read(episode["next", "pixels"]))
+    return _with_pixels(episode, readout.read(recorded_images(episode)))
+
+
+def recorded_images(episode) -> torch.Tensor:
+    """The images a teacher stage recorded with an episode of D: a clear error when it
+    recorded none (:func:`records_images`)."""
+    if ("next", "pixels") not in episode.keys(True):
+        raise ValueError("this D holds no images: the teacher stage renders them only when "
+                         "a student reads them (Config.teacher_pixels); rerun the recipe "
+                         "with --teacher-pixels always into a new output folder")
+    return episode["next", "pixels"]
 
 
 def with_positions(episode, readout: StateReadout):
@@ -655,19 +705,53 @@ def validate_student(cfg: Config, task: str, seed: int, twist: TwistStudent) -> 
     return {"mean": stats["mean"], "std": stats["std"], "returns": stats["returns"]}
 
 
+def last_snapshot(teacher: dict) -> str | None:
+    """The path of the last snapshot a finished teacher stage validated, or None when
+    there is none or it is the deployed teacher itself."""
+    selection = teacher.get("selection")
+    if not selection or not selection["candidates"]:
+        return None
+    last = selection["candidates"][-1]["snapshot"]
+    return None if last == selection["chosen"] else last
+
+
+def snapshot_teacher(cfg: Config, task: str, seed: int, teacher: dict, snapshot: str,
+                     stage_dir: Path) -> dict:
+    """``teacher`` (a teacher stage's result) with the weights of ``snapshot`` as its
+    deployed agent, saved as ``stage_dir/teacher_agent.pt`` (D is the same)."""
+    agent = teacher_agent(cfg, task)
+    agent.load_weights(load_checkpoint(snapshot)["weights"], snapshot)
+    stage_dir.mkdir(parents=True, exist_ok=True)
+    agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
+    return {**teacher, "agent": str(stage_dir / "teacher_agent.pt")}
+
+
 def candidate_student_stage(cfg: Config, task: str, seed: int, teacher: dict,
-                            overrides: dict, states: str, stage_dir: Path) -> dict:
-    """One candidate readout student, trained on ``states`` of D and validated."""
+                            overrides: dict, states: str, stage_dir: Path,
+                            snapshot: str = "best") -> dict:
+    """One candidate readout student, trained on ``states`` of D and validated, distilled
+    from the deployed teacher (``snapshot="best"``) or from the teacher stage's last
+    snapshot (``"last"``; skipped, with ``validation`` None, when that is the deployed one)."""
+    if snapshot == "last":
+        last = last_snapshot(teacher)
+        if last is None:
+            print(f"candidate {stage_dir.name}: the last snapshot is the deployed teacher, "
+                  f"skipped", flush=True)
+            return {"skipped": "the teacher's last snapshot is its deployed one",
+                    "validation": None}
+        teacher = snapshot_teacher(cfg, task, seed, teacher, last, stage_dir)
     twist, trained = train_student(cfg, task, seed, teacher, overrides, stage_dir, states)
     validation = validate_student(cfg, task, seed, twist)
     print(f"candidate {stage_dir.name}: validation {validation['mean']:.1f}", flush=True)
-    return {**trained, "validation": validation}
+    return {**trained, "validation": validation, "teacher_agent": teacher["agent"]}
 
 
 def select_student(candidates: dict[str, dict]) -> str:
     """The candidate (name -> its stage result) with the best validation mean; ties go to
-    the earlier one in ``candidates``' order."""
-    names = list(candidates)
+    the earlier one in ``candidates``' order; skipped candidates (validation None) never."""
+    names = [n for n in candidates if candidates[n]["validation"] is not None]
+    if not names:
+        raise RuntimeError(f"no trained candidate student among {list(candidates)}")
     return max(names, key=lambda n: (candidates[n]["validation"]["mean"], -names.index(n)))
 
 
@@ -676,6 +760,8 @@ def selected_student_stage(cfg: Config, task: str, seed: int, teacher: dict, ove
     """Deploys the candidate student with the best validation return (its weights copied
     into this stage as ``student.pt``) and evaluates it from pixels."""
     chosen = select_student(candidates)
+    # a candidate of another snapshot deploys with that snapshot's actor
+    teacher = {**teacher, "agent": candidates[chosen].get("teacher_agent", teacher["agent"])}
     torch.manual_seed(seed)
     twist = build_student(cfg, task, load_teacher(cfg, task, teacher), overrides)
     state = load_checkpoint(candidates[chosen]["checkpoint"])
@@ -684,9 +770,10 @@ def selected_student_stage(cfg: Config, task: str, seed: int, teacher: dict, ove
     shutil.copyfile(candidates[chosen]["checkpoint"], stage_dir / "student.pt.tmp")
     os.replace(stage_dir / "student.pt.tmp", stage_dir / "student.pt")
     trained = {**candidates[chosen], "checkpoint": str(stage_dir / "student.pt"),
-               "chosen": chosen, "candidates": {n: {"checkpoint": c["checkpoint"],
-                                                    "validation": c["validation"]}
-                                                for n, c in candidates.items()}}
+               "teacher_agent": teacher["agent"], "chosen": chosen,
+               "candidates": {n: {"checkpoint": c.get("checkpoint"),
+                                  "validation": c["validation"]}
+                              for n, c in candidates.items()}}
     trained.pop("validation")
     return deploy_student(cfg, task, seed, twist, trained, stage_dir)
 
@@ -786,19 +873,25 @@ def teacher_chain(cfg: Config, task: str, seed: int) -> None:
 
 
 def student_candidates(cfg: Config, task: str) -> list[str]:
-    """The training sets of the candidate students of ``task`` (several only for a
-    readout student with two ``readout_student_states``)."""
-    if readout_file(cfg, task) is None or len(cfg.readout_student_states) < 2:
+    """The candidate students of ``task``, by name: each of ``readout_student_states``
+    (distilled from the deployed teacher), then ``last_<states>`` for each of
+    ``student_last_teacher_states`` (from the teacher's last snapshot); none unless a
+    readout student has at least two."""
+    names = [*cfg.readout_student_states,
+             *(f"last_{states}" for states in cfg.student_last_teacher_states)]
+    if readout_file(cfg, task) is None or len(names) < 2:
         return []
-    return list(cfg.readout_student_states)
+    return names
 
 
-def candidate_chain(cfg: Config, task: str, seed: int, suffix: str, states: str) -> None:
-    """One candidate of a student of :data:`STUDENTS`, trained on ``states`` of D."""
+def candidate_chain(cfg: Config, task: str, seed: int, suffix: str, name: str) -> None:
+    """One candidate of a student of :data:`STUDENTS` (``name``: see
+    :func:`student_candidates`)."""
     runner, key = stage_runner(cfg), f"{task}_s{seed}"
     teacher = runner.result(f"{key}_teacher")
-    _stage(runner, f"{key}_{suffix}_{states}", lambda d: candidate_student_stage(
-        cfg, task, seed, teacher, STUDENTS[suffix][1], states, d))
+    snapshot, states = ("last", name[len("last_"):]) if name.startswith("last_") else ("best", name)
+    _stage(runner, f"{key}_{suffix}_{name}", lambda d: candidate_student_stage(
+        cfg, task, seed, teacher, STUDENTS[suffix][1], states, d, snapshot))
 
 
 def student_chain(cfg: Config, task: str, seed: int, suffix: str) -> None:
@@ -846,8 +939,8 @@ def main(argv=None):
     for i, (task, seed) in enumerate((t, s) for t in cfg.tasks for s in cfg.seeds):
         for suffix in cfg.students:  # candidates (if any) side by side, then the choice
             first = len(chains)
-            for states in student_candidates(cfg, task):
-                chains.append((candidate_chain, (cfg, task, seed, suffix, states)))
+            for name in student_candidates(cfg, task):
+                chains.append((candidate_chain, (cfg, task, seed, suffix, name)))
                 after.append((i,))
             after.append(tuple(range(first, len(chains))) or (i,))
             chains.append((student_chain, (cfg, task, seed, suffix)))
@@ -886,8 +979,12 @@ def main(argv=None):
     recording = None
     if cfg.record:
         task, seed = cfg.tasks[0], cfg.seeds[0]
+        # the TWIST student's own teacher (a candidate may come from another snapshot)
+        teacher = records[f"{task}_s{seed}"]["teacher"]
+        teacher = {**teacher, "agent": runner.result(f"{task}_s{seed}_twist").get(
+            "teacher_agent", teacher["agent"])}
         recording = _stage(runner, "recording", lambda d: recording_stage(
-            cfg, task, seed, records[f"{task}_s{seed}"]["teacher"], out))
+            cfg, task, seed, teacher, out))
     wall = time.perf_counter() - start
     print("\n" + format_table(results))
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
