@@ -225,6 +225,19 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     assert all(x["mse"] >= 0 and x["mse_teacher_actor"] > 0 for x in lines[1:])
     # the run's own settings: tiny episodes (the default preset's are 500 steps)
     assert lines[2]["steps"] - lines[1]["steps"] == 2 * recipe_cfg_episode_steps(tmp_path)
+    # one student per teacher snapshot, each validated, on the run's own (tiny) settings
+    snap = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "twist_snapshot_students.py"), "--outputs",
+         str(tmp_path), "--work", str(tmp_path / "snapshots")],
+        capture_output=True, text=True, timeout=300)
+    assert snap.returncode == 0, snap.stderr
+    lines = [json.loads(x) for x in snap.stdout.splitlines() if x.startswith("{")]
+    assert [x["snapshot"] for x in lines] == ["00000", "00001"]
+    assert sum(x["deployed"] for x in lines) == 1
+    assert all(x["student_validation"] >= 0 for x in lines)
+    trained = torch.load(tmp_path / "snapshots" / "cartpole-balance_s0_twist_snapshot_00000" /
+                         "student.pt", weights_only=True)
+    assert len(trained["history"]) == 3  # the tiny preset's readout-student updates
 
 
 def _oracle_diagnosis(outputs, variant: str, *flags: str) -> list[dict]:
