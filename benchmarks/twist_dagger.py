@@ -48,6 +48,7 @@ def labelled(twist: TwistStudent, episodes: list) -> tuple[torch.Tensor, torch.T
     features, targets = [], []
     with torch.no_grad():
         for episode in episodes:
+            recipe.recorded_images(episode)  # the student reads D's images: a clear error without
             teacher, student = twist.distillation.filter_both(episode.unsqueeze(0))
             features.append(DreamerWorldModel.features(student)[0])
             targets.append(twist.teacher.actor(DreamerWorldModel.features(teacher))[0])
