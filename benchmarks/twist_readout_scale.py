@@ -177,9 +177,18 @@ STATE_DIM = 5
 
 
 def balancing_domain(max_angle: float, max_cart: float) -> tuple[list[float], list[float]]:
-    """The box of ``(x, cos, sin)`` that poses drawn by :func:`draw_states` fill."""
-    return ([-max_cart, math.cos(max_angle), -math.sin(max_angle)],
-            [max_cart, 1.0, math.sin(max_angle)])
+    """The box of ``(x, cos, sin)`` that poses drawn by :func:`draw_states` fill (any
+    ``max_angle`` up to pi, the whole circle).
+
+    Examples:
+        >>> balancing_domain(math.pi, 1.8)
+        ([-1.8, -1.0, -1.0], [1.8, 1.0, 1.0])
+    """
+    if not 0 < max_angle <= math.pi:
+        raise ValueError(f"max_angle must be in (0, pi], got {max_angle}")
+    sin = 1.0 if max_angle >= math.pi / 2 else math.sin(max_angle)
+    cos = -1.0 if max_angle >= math.pi - 1e-9 else math.cos(max_angle)
+    return ([-max_cart, cos, -sin], [max_cart, 1.0, sin])
 
 
 def fitted_readout(encoder: PixelEncoder, head: torch.nn.Linear, mean: torch.Tensor,
@@ -197,6 +206,22 @@ def fitted_readout(encoder: PixelEncoder, head: torch.nn.Linear, mean: torch.Ten
     return readout
 
 
+def save_composed(args, fallback: StateReadout, path: Path) -> Path:
+    """``args.fallback_for`` with ``fallback`` attached (answering outside the gate), saved
+    to ``path`` with the precise readout's description and meta, and the fallback's."""
+    precise = StateReadout.load(args.fallback_for)
+    composed = StateReadout(precise.encoder, precise.state_dim, precise.dims.tolist(),
+                            precise.mean, precise.std, precise.domain, fallback=fallback,
+                            gate=(args.gate_low, args.gate_high))
+    composed.head.load_state_dict(precise.head.state_dict())
+    meta = json.loads(args.fallback_for.with_suffix(".json").read_text())
+    meta.pop("readout", None)
+    fallback_meta = json.loads(path.with_name(path.name.replace("composed_", "readout_"))
+                               .with_suffix(".json").read_text())
+    fallback_meta.pop("readout", None)
+    return composed.save(path, meta={**meta, "fallback": fallback_meta})
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--train-images", type=int, nargs="+", default=[4000, 16000])
@@ -208,7 +233,8 @@ def main(argv=None) -> None:
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--depth", type=int, default=32)
     p.add_argument("--shift", type=int, default=4)
-    p.add_argument("--max-angle", type=float, default=0.3, help="radians from upright")
+    p.add_argument("--max-angle", type=float, default=0.3,
+                   help="radians from upright (pi: every pose, e.g. a fallback readout)")
     p.add_argument("--max-cart", type=float, default=1.0, help="metres from the centre")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--device", default="cpu")
@@ -226,7 +252,17 @@ def main(argv=None) -> None:
     p.add_argument("--save-readouts", type=Path, default=None,
                    help="folder: each fitted readout as readout_<camera>_<images>.pt, for "
                         "`twist_diagnosis.py readout --readout-file`")
+    p.add_argument("--fallback-for", type=Path, default=None,
+                   help="a StateReadout file: each fitted readout is also saved (with "
+                        "--save-readouts) as that readout's fallback, composed_<camera>_"
+                        "<images>.pt, answering outside --gate-low/--gate-high")
+    p.add_argument("--gate-low", type=float, nargs="+", default=None,
+                   help="--fallback-for: low (x, cos, sin) of where the precise one answers")
+    p.add_argument("--gate-high", type=float, nargs="+", default=None)
     args = p.parse_args(argv)
+    if args.fallback_for and not (args.save_readouts and args.gate_low and args.gate_high):
+        p.error("--fallback-for needs --save-readouts, --gate-low and --gate-high")
+    args.max_angle = min(args.max_angle, math.pi)  # 3.1416 means the whole circle
     if args.updates < 4 or min(args.train_images) < 1 or args.renders_per_state < 1:
         p.error("--updates must be >= 4, --train-images and --renders-per-state >= 1")
     device = torch.device(args.device)
@@ -274,6 +310,8 @@ def main(argv=None) -> None:
                     "rmse_x_cos_sin": {k: v for k, v in rows[-1].items()
                                        if k.startswith("rmse_")},
                     "test_spread_x_cos_sin": spread})
+                if args.fallback_for:
+                    save_composed(args, readout, args.save_readouts / f"composed_{camera}_{n}.pt")
             for row in rows:
                 row.update({"camera": camera, "train_images": n, "device": str(device),
                             "render_fps": round(fps), "test_spread": spread})

@@ -31,18 +31,6 @@ import torch
 from simdist.recipes import twist_dmc as recipe
 
 
-def run_config(outputs: Path, preset: str) -> recipe.Config:
-    """The finished run's config (its ``config.json``), fields this code no longer has
-    dropped; without one, ``preset``'s."""
-    saved = outputs / "config.json"
-    base = dataclasses.replace(recipe.Config(), **recipe.PRESETS[preset])
-    if not saved.exists():
-        return base
-    known = {f.name for f in dataclasses.fields(recipe.Config)}
-    values = {k: v for k, v in json.loads(saved.read_text()).items() if k in known}
-    return dataclasses.replace(base, **values)
-
-
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--outputs", type=Path, required=True, help="a finished recipe run")
@@ -57,7 +45,7 @@ def main(argv=None) -> list[dict]:
                         help="used only when --outputs has no config.json")
     parser.add_argument("--work", type=Path, default=Path("outputs/twist_snapshot_students"))
     args = parser.parse_args(argv)
-    cfg = dataclasses.replace(run_config(args.outputs, args.preset),
+    cfg = dataclasses.replace(recipe.saved_config(args.outputs, args.preset),
                               output_dir=str(args.work), jobs=1)
     if recipe.readout_file(cfg, args.task) is None:
         raise SystemExit(f"{args.task} has no readout student under this config: the "

@@ -156,3 +156,56 @@ def test_describe_refuses_an_encoder_it_could_not_rebuild():
     readout = StateReadout(PixelEncoder(4, arch="keypoints", keypoints=4), 5, [0, 1, 2])
     with pytest.raises(ValueError, match="only a PixelEncoder of arch 'dreamer'"):
         readout.describe()
+
+
+GATE = ([-0.9, 0.0, -0.27], [0.9, 2.0, 0.27])
+
+
+def _gated() -> tuple[StateReadout, StateReadout]:
+    torch.manual_seed(1)
+    wide = StateReadout(PixelEncoder(4, norm="layer", input_norm="image"), 5, [0, 1, 2],
+                        mean=torch.tensor([0.0, 0.0, 0.0]), std=torch.tensor([1.0, 0.7, 0.7]))
+    return _readout(domain=DOMAIN, fallback=wide, gate=GATE), wide
+
+
+def test_fallback_answers_where_its_reading_lies_outside_the_gate():
+    gated, wide = _gated()
+    precise = _readout(domain=DOMAIN)  # the same weights, no fallback
+    images = _images(4, 6)
+    coarse, fine, out = wide(images), precise(images), gated(images)
+    inside = ((coarse >= torch.tensor(GATE[0])) & (coarse <= torch.tensor(GATE[1]))).all(-1)
+    # by hand: the precise reading inside the gate, the fallback's everywhere else
+    assert torch.equal(out, torch.where(inside[..., None], fine, coarse))
+    assert torch.equal(gated.gated(coarse), inside)
+    # both branches are exercised: move the fallback's offsets to put images in or out
+    with torch.no_grad():
+        wide.mean.copy_(torch.tensor([5.0, 0.0, 0.0]))  # x reads 5 m: all outside
+    assert torch.equal(gated(images), wide(images))
+    with torch.no_grad():
+        wide.mean.zero_(), wide.std.fill_(1e-6), wide.mean[1].fill_(1.0)  # all upright
+    assert torch.equal(gated(images), fine)
+    # covers stays this readout's own fitted domain, frozen like the rest
+    assert gated.covers(torch.tensor([[1.2, 1.0, 0.0, 0.0, 0.0]])).tolist() == [False]
+    assert not any(p.requires_grad for p in gated.parameters())
+    readings = gated.read(images.reshape(-1, 64, 64, 3))
+    assert gated(readings) is readings  # precomputed readings pass through
+
+
+def test_fallback_round_trips_and_refuses_mismatches(tmp_path):
+    gated, _ = _gated()
+    path = gated.save(tmp_path / "g.pt")
+    desc = json.loads(path.with_suffix(".json").read_text())["readout"]
+    assert desc["gate"] == [list(s) for s in GATE] and desc["fallback"]["depth"] == 4
+    loaded = StateReadout.load(path)
+    images = _images(5)
+    assert torch.equal(loaded(images), gated(images)) and loaded.gate == gated.gate
+    with pytest.raises(ValueError, match="the fallback readout reads dims"):
+        StateReadout(PixelEncoder(4), 5, [0, 1], fallback=_readout())
+    with pytest.raises(ValueError, match="a gate needs a fallback"):
+        _readout(gate=GATE)
+    with pytest.raises(ValueError, match="needs a gate"):
+        _readout(fallback=_readout())
+    with pytest.raises(ValueError, match="gate must be"):
+        _readout(fallback=_readout(), gate=([0.0], [1.0]))
+    with pytest.raises(ValueError, match="no fallback"):
+        _readout().gated(torch.zeros(2, 3))

@@ -238,6 +238,17 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     trained = torch.load(tmp_path / "snapshots" / "cartpole-balance_s0_twist_snapshot_00000" /
                          "student.pt", weights_only=True)
     assert len(trained["history"]) == 3  # the tiny preset's readout-student updates
+    # the selected student re-deployed through the readout it was trained with: the
+    # run's own figure to the bit (same weights, same worlds)
+    readout = _recipe_module().readout_file(_recipe_module().saved_config(tmp_path),
+                                            "cartpole-balance")
+    redeploy = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "twist_redeploy_readout.py"), "--outputs",
+         str(tmp_path), "--seeds", "0", "--readout", str(readout)],
+        capture_output=True, text=True, timeout=300)
+    assert redeploy.returncode == 0, redeploy.stderr
+    line = json.loads([x for x in redeploy.stdout.splitlines() if x.startswith("{")][-1])
+    assert line["returns"] == line["run_returns"] and line["chosen"] is not None
 
 
 def _oracle_diagnosis(outputs, variant: str, *flags: str) -> list[dict]:

@@ -5,6 +5,7 @@ import json
 import math
 from pathlib import Path
 
+import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -153,3 +154,32 @@ def test_init_readout_goes_on_from_the_file_in_its_units(tmp_path):
         assert "not (x, cos, sin)" in str(err)
     else:
         raise AssertionError("a readout of dimensions [0, 2] must be refused")
+
+
+def test_whole_circle_domain_and_a_composed_fallback(tmp_path):
+    assert scale.balancing_domain(math.pi, 1.8) == ([-1.8, -1.0, -1.0], [1.8, 1.0, 1.0])
+    assert scale.balancing_domain(math.pi / 2, 1.0)[1][2] == 1.0
+    with pytest.raises(ValueError, match="max_angle"):
+        scale.balancing_domain(0.0, 1.0)
+    scale.main(["--train-images", "6", "--updates", "4", "--batch", "4", "--test-images",
+                "6", "--depth", "4", "--save-readouts", str(tmp_path / "a")])
+    precise_path = tmp_path / "a" / "readout_none_6.pt"
+    scale.main(["--train-images", "6", "--updates", "4", "--batch", "4", "--test-images",
+                "6", "--depth", "4", "--max-angle", "3.1416", "--max-cart", "1.8",
+                "--save-readouts", str(tmp_path / "w"), "--fallback-for", str(precise_path),
+                "--gate-low", "-0.9", "0", "-0.27", "--gate-high", "0.9", "2", "0.27"])
+    wide = scale.StateReadout.load(tmp_path / "w" / "readout_none_6.pt")
+    assert wide.domain == ([-1.8, -1.0, -1.0], [1.8, 1.0, 1.0])
+    composed = scale.StateReadout.load(tmp_path / "w" / "composed_none_6.pt")
+    precise = scale.StateReadout.load(precise_path)
+    # the precise readout's weights, units and domain, the fresh fit as its fallback
+    assert composed.domain == precise.domain and composed.gate == ([-0.9, 0, -0.27],
+                                                                    [0.9, 2, 0.27])
+    images = torch.randint(0, 256, (8, 64, 64, 3), dtype=torch.uint8)
+    inside = composed.gated(wide(images))
+    expected = torch.where(inside[:, None], precise(images), wide(images))
+    assert torch.equal(composed(images), expected)
+    meta = json.loads((tmp_path / "w" / "composed_none_6.json").read_text())
+    assert meta["fallback"]["train_images"] == 6 and "readout" not in meta["fallback"]
+    with pytest.raises(SystemExit):
+        scale.main(["--fallback-for", str(precise_path), "--save-readouts", str(tmp_path)])

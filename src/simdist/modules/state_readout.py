@@ -6,6 +6,13 @@ and a linear head fitted *supervised* to the privileged positions of many domain
 renders (``benchmarks/twist_readout_scale.py``), then frozen; :class:`ReadoutEncoder`
 feeds its readings to a trainable state encoder, so that the student RSSM learns the
 velocities and the teacher's latent from the readings, as a state student would.
+
+A readout fitted precisely on a small domain (the balancing region) extrapolates outside
+it: a student whose pole swings out of that box reads nonsense and cannot bring it back.
+A second, coarse readout fitted on every pose can be attached as the ``fallback``: its
+reading decides whether the image lies inside the precise readout's ``gate`` box, and it
+answers where it does not (benchmarks/README.md, "A readout for the poses outside the
+balancing region").
 """
 
 from __future__ import annotations
@@ -41,6 +48,11 @@ class StateReadout(nn.Module):
         mean: the standardisation's mean of those dimensions (``[len(dims)]``).
         std: its standard deviation (``[len(dims)]``).
         domain: ``(low, high)`` per returned dimension, the fitted region; ``None``: all.
+        fallback: an optional readout of the same dimensions fitted on a wider domain:
+            where its reading of an image lies outside ``gate``, the fallback's reading
+            is returned instead of this readout's extrapolation.
+        gate: ``(low, high)`` per returned dimension, where this readout answers (judged
+            on the fallback's reading); default: ``domain``. Only with a ``fallback``.
 
     Examples:
         >>> readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
@@ -51,11 +63,18 @@ class StateReadout(nn.Module):
         True
         >>> any(p.requires_grad for p in readout.parameters())
         False
+        >>> wide = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
+        >>> gated = StateReadout(PixelEncoder(4), 5, [0, 1, 2], fallback=wide,
+        ...                      gate=([-1.0, 0.0, -0.3], [1.0, 2.0, 0.3]))
+        >>> gated(images).shape
+        torch.Size([2, 7, 3])
     """
 
     def __init__(self, encoder: PixelEncoder, state_dim: int, dims: list[int],
                  mean: torch.Tensor | None = None, std: torch.Tensor | None = None,
-                 domain: tuple[list[float], list[float]] | None = None):
+                 domain: tuple[list[float], list[float]] | None = None,
+                 fallback: StateReadout | None = None,
+                 gate: tuple[list[float], list[float]] | None = None):
         super().__init__()
         dims = [int(d) for d in dims]
         if not dims or len(set(dims)) != len(dims) or not all(0 <= d < state_dim for d in dims):
@@ -76,6 +95,22 @@ class StateReadout(nn.Module):
                                  f"low < high, got {domain}")
             domain = (low, high)
         self.domain = domain
+        if fallback is not None and (fallback.state_dim != state_dim
+                                     or fallback.dims.tolist() != dims):
+            raise ValueError(f"the fallback readout reads dims {fallback.dims.tolist()} of "
+                             f"a {fallback.state_dim}-d state; this one {dims} of {state_dim}")
+        if gate is not None and fallback is None:
+            raise ValueError("a gate needs a fallback readout")
+        gate = domain if gate is None and fallback is not None else gate
+        if fallback is not None and gate is None:
+            raise ValueError("a fallback readout needs a gate (or a domain) to switch on")
+        if gate is not None:
+            low, high = (list(map(float, side)) for side in gate)
+            if len(low) != n or len(high) != n or any(lo >= hi for lo, hi in zip(low, high)):
+                raise ValueError(f"gate must be (low, high) with {n} values each and "
+                                 f"low < high, got {gate}")
+            gate = (low, high)
+        self.fallback, self.gate = fallback, gate
         self.requires_grad_(False)
         self.eval()
 
@@ -92,7 +127,11 @@ class StateReadout(nn.Module):
             batch = x.shape[:-3]
             out = self.head(self.encoder(x.reshape(-1, *x.shape[-3:])))
             out = out.index_select(-1, self.dims) * self.std + self.mean
-            return out.reshape(*batch, self.out_dim)
+            out = out.reshape(*batch, self.out_dim)
+            if self.fallback is None:
+                return out
+            coarse = self.fallback(x)
+            return torch.where(self.gated(coarse)[..., None], out, coarse)
         if not x.is_floating_point() or x.shape[-1] != self.out_dim:
             raise ValueError(f"StateReadout reads uint8 images [..., 64, 64, 3] or passes "
                              f"precomputed readings [..., {self.out_dim}]; got "
@@ -109,8 +148,18 @@ class StateReadout(nn.Module):
         return torch.cat([self(pixels[i:i + chunk].to(device)).cpu()
                           for i in range(0, len(pixels), chunk)])
 
+    def gated(self, readings: torch.Tensor) -> torch.Tensor:
+        """Mask ``[...]`` of the (fallback's) readings ``[..., out_dim]`` inside the gate,
+        where this readout answers."""
+        if self.gate is None:
+            raise ValueError("this readout has no fallback, hence no gate")
+        low = torch.tensor(self.gate[0], device=readings.device, dtype=readings.dtype)
+        high = torch.tensor(self.gate[1], device=readings.device, dtype=readings.dtype)
+        return ((readings >= low) & (readings <= high)).all(-1)
+
     def covers(self, state: torch.Tensor) -> torch.Tensor:
-        """Mask ``[...]`` of the states ``[..., state_dim]`` inside the fitted domain."""
+        """Mask ``[...]`` of the states ``[..., state_dim]`` inside the fitted domain (of
+        this readout; a fallback's wider domain does not count: its readings are coarse)."""
         check_last_dims("state", state, (self.state_dim,))
         if self.domain is None:
             return torch.ones(state.shape[:-1], dtype=torch.bool, device=state.device)
@@ -128,13 +177,19 @@ class StateReadout(nn.Module):
         return {"depth": int(enc.net[0].out_channels), "norm": enc.norm,
                 "input_norm": enc.input_norm, "state_dim": int(self.state_dim),
                 "dims": self.dims.tolist(),
-                "domain": None if self.domain is None else [list(s) for s in self.domain]}
+                "domain": None if self.domain is None else [list(s) for s in self.domain],
+                **({} if self.fallback is None else {
+                    "fallback": self.fallback.describe(),
+                    "gate": [list(s) for s in self.gate]})}
 
     @classmethod
     def from_description(cls, desc: dict) -> StateReadout:
         try:
             encoder = PixelEncoder(desc["depth"], norm=desc["norm"], input_norm=desc["input_norm"])
-            return cls(encoder, desc["state_dim"], desc["dims"], domain=desc.get("domain"))
+            fallback = (cls.from_description(desc["fallback"]) if desc.get("fallback")
+                        else None)
+            return cls(encoder, desc["state_dim"], desc["dims"], domain=desc.get("domain"),
+                       fallback=fallback, gate=desc.get("gate"))
         except (KeyError, TypeError) as e:
             raise ValueError(f"not a StateReadout description ({e!r}): {desc}") from None
 

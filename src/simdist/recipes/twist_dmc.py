@@ -367,6 +367,19 @@ TRAIN_CAMERA_JITTER = {
     "camera_angle_jitter_deg": round(1.5 * VisualRandomisation.camera_angle_jitter_deg, 6)}
 
 
+def saved_config(outputs: str | os.PathLike, preset: str = "default") -> Config:
+    """The config of a finished run in ``outputs`` (its ``config.json``), fields this code
+    no longer has dropped and fields added since at ``preset``'s values; without a
+    ``config.json``, ``preset``'s config."""
+    saved = Path(outputs) / "config.json"
+    base = dataclasses.replace(Config(), **PRESETS[preset])
+    if not saved.exists():
+        return base
+    known = {f.name for f in dataclasses.fields(Config)}
+    values = {k: v for k, v in json.loads(saved.read_text()).items() if k in known}
+    return dataclasses.replace(base, **values)
+
+
 def training_visual(cfg: Config) -> VisualRandomisation:
     """The randomisation under which the teacher stage records D's images."""
     if cfg.train_camera:
