@@ -207,12 +207,14 @@ def fitted_readout(encoder: PixelEncoder, head: torch.nn.Linear, mean: torch.Ten
 
 
 def save_composed(args, fallback: StateReadout, path: Path) -> Path:
-    """``args.fallback_for`` with ``fallback`` attached (answering outside the gate), saved
+    """``args.fallback_for`` with ``fallback`` attached (answering outside the gates), saved
     to ``path`` with the precise readout's description and meta, and the fallback's."""
     precise = StateReadout.load(args.fallback_for)
     composed = StateReadout(precise.encoder, precise.state_dim, precise.dims.tolist(),
                             precise.mean, precise.std, precise.domain, fallback=fallback,
-                            gate=(args.gate_low, args.gate_high))
+                            gate=(args.gate_low, args.gate_high),
+                            fallback_gate=None if args.fallback_gate_low is None else (
+                                args.fallback_gate_low, args.fallback_gate_high))
     composed.head.load_state_dict(precise.head.state_dict())
     meta = json.loads(args.fallback_for.with_suffix(".json").read_text())
     meta.pop("readout", None)
@@ -255,13 +257,20 @@ def main(argv=None) -> None:
     p.add_argument("--fallback-for", type=Path, default=None,
                    help="a StateReadout file: each fitted readout is also saved (with "
                         "--save-readouts) as that readout's fallback, composed_<camera>_"
-                        "<images>.pt, answering outside --gate-low/--gate-high")
+                        "<images>.pt, answering where the precise one's reading leaves "
+                        "--gate-low/--gate-high or its own leaves --fallback-gate-low/-high")
     p.add_argument("--gate-low", type=float, nargs="+", default=None,
-                   help="--fallback-for: low (x, cos, sin) of where the precise one answers")
+                   help="--fallback-for: low (x, cos, sin) of the precise reading's gate")
     p.add_argument("--gate-high", type=float, nargs="+", default=None)
+    p.add_argument("--fallback-gate-low", type=float, nargs="+", default=None,
+                   help="--fallback-for: low (x, cos, sin) of the fallback reading's gate "
+                        "(default: none)")
+    p.add_argument("--fallback-gate-high", type=float, nargs="+", default=None)
     args = p.parse_args(argv)
     if args.fallback_for and not (args.save_readouts and args.gate_low and args.gate_high):
         p.error("--fallback-for needs --save-readouts, --gate-low and --gate-high")
+    if (args.fallback_gate_low is None) != (args.fallback_gate_high is None):
+        p.error("--fallback-gate-low and --fallback-gate-high go together")
     args.max_angle = min(args.max_angle, math.pi)  # 3.1416 means the whole circle
     if args.updates < 4 or min(args.train_images) < 1 or args.renders_per_state < 1:
         p.error("--updates must be >= 4, --train-images and --renders-per-state >= 1")

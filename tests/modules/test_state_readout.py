@@ -106,9 +106,10 @@ def test_load_refuses_missing_or_mismatched_or_poisoned_files(tmp_path):
         StateReadout.load(path)
 
 
-def _readout_student() -> TwistStudent:
+def _readout_student(readout: StateReadout | None = None) -> TwistStudent:
     teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
-    model = DreamerWorldModel.readout_student(_readout(domain=DOMAIN), 1, "tiny")
+    readout = _readout(domain=DOMAIN) if readout is None else readout
+    model = DreamerWorldModel.readout_student(readout, 1, "tiny")
     return TwistStudent(teacher, model, TwistConfig(horizon=3, lr=1e-2))
 
 
@@ -137,12 +138,15 @@ def test_readout_student_trains_its_rssm_and_state_encoder_never_the_readout():
                zip(encoder_before, twist.student.encoder.encoder.parameters()))
 
 
-def test_readout_student_saves_and_reloads_and_acts_the_same(tmp_path):
-    twist = _readout_student()
+@pytest.mark.parametrize("gated", [False, True])
+def test_readout_student_saves_and_reloads_and_acts_the_same(tmp_path, gated):
+    twist = _readout_student(_gated()[0] if gated else None)
     twist.update(_batch(_images(2, 4)))
     loaded = TwistStudent.load(twist.save(tmp_path / "student.pt"))
     assert isinstance(loaded.student.encoder, ReadoutEncoder)
     assert loaded.student.encoder.readout.domain == twist.student.encoder.readout.domain
+    assert loaded.student.encoder.readout.gate == twist.student.encoder.readout.gate
+    assert (loaded.student.encoder.readout.fallback is None) == (not gated)
     images = _images(3)
     assert torch.equal(loaded.student.encoder(images), twist.student.encoder(images))
 
@@ -158,32 +162,41 @@ def test_describe_refuses_an_encoder_it_could_not_rebuild():
         readout.describe()
 
 
-GATE = ([-0.9, 0.0, -0.27], [0.9, 2.0, 0.27])
+GATE = ([-0.9, 0.9, -0.27], [0.9, 2.0, 0.27])
+FALLBACK_GATE = ([-9.0, 0.3, -9.0], [9.0, 2.0, 9.0])
 
 
 def _gated() -> tuple[StateReadout, StateReadout]:
     torch.manual_seed(1)
     wide = StateReadout(PixelEncoder(4, norm="layer", input_norm="image"), 5, [0, 1, 2],
                         mean=torch.tensor([0.0, 0.0, 0.0]), std=torch.tensor([1.0, 0.7, 0.7]))
-    return _readout(domain=DOMAIN, fallback=wide, gate=GATE), wide
+    return _readout(domain=DOMAIN, fallback=wide, gate=GATE, fallback_gate=FALLBACK_GATE), wide
 
 
-def test_fallback_answers_where_its_reading_lies_outside_the_gate():
+def _in(values: torch.Tensor, box) -> torch.Tensor:
+    return ((values >= torch.tensor(box[0])) & (values <= torch.tensor(box[1]))).all(-1)
+
+
+def test_fallback_answers_where_either_reading_leaves_its_gate():
     gated, wide = _gated()
     precise = _readout(domain=DOMAIN)  # the same weights, no fallback
     images = _images(4, 6)
     coarse, fine, out = wide(images), precise(images), gated(images)
-    inside = ((coarse >= torch.tensor(GATE[0])) & (coarse <= torch.tensor(GATE[1]))).all(-1)
-    # by hand: the precise reading inside the gate, the fallback's everywhere else
+    inside = _in(fine, GATE) & _in(coarse, FALLBACK_GATE)
+    # by hand: the precise reading inside both gates, the fallback's everywhere else
     assert torch.equal(out, torch.where(inside[..., None], fine, coarse))
-    assert torch.equal(gated.gated(coarse), inside)
-    # both branches are exercised: move the fallback's offsets to put images in or out
+    assert torch.equal(gated.gated(fine, coarse), inside)
+    # each gate alone sends an image to the fallback: put every reading in, then out
     with torch.no_grad():
-        wide.mean.copy_(torch.tensor([5.0, 0.0, 0.0]))  # x reads 5 m: all outside
+        for r in (precise, gated, wide):
+            r.std.fill_(1e-6), r.mean.copy_(torch.tensor([0.0, 1.0, 0.0]))  # upright
+    assert torch.equal(gated(images), precise(images))
+    with torch.no_grad():
+        wide.mean[1] = 0.0  # the fallback sees the pole horizontal: below its cos gate
     assert torch.equal(gated(images), wide(images))
     with torch.no_grad():
-        wide.mean.zero_(), wide.std.fill_(1e-6), wide.mean[1].fill_(1.0)  # all upright
-    assert torch.equal(gated(images), fine)
+        wide.mean[1], gated.mean[0] = 1.0, 0.95  # the precise cart reading beyond 0.9 m
+    assert torch.equal(gated(images), wide(images))
     # covers stays this readout's own fitted domain, frozen like the rest
     assert gated.covers(torch.tensor([[1.2, 1.0, 0.0, 0.0, 0.0]])).tolist() == [False]
     assert not any(p.requires_grad for p in gated.parameters())
@@ -196,16 +209,21 @@ def test_fallback_round_trips_and_refuses_mismatches(tmp_path):
     path = gated.save(tmp_path / "g.pt")
     desc = json.loads(path.with_suffix(".json").read_text())["readout"]
     assert desc["gate"] == [list(s) for s in GATE] and desc["fallback"]["depth"] == 4
+    assert desc["fallback_gate"] == [list(s) for s in FALLBACK_GATE]
     loaded = StateReadout.load(path)
     images = _images(5)
     assert torch.equal(loaded(images), gated(images)) and loaded.gate == gated.gate
+    assert loaded.fallback_gate == gated.fallback_gate
     with pytest.raises(ValueError, match="the fallback readout reads dims"):
         StateReadout(PixelEncoder(4), 5, [0, 1], fallback=_readout())
-    with pytest.raises(ValueError, match="a gate needs a fallback"):
-        _readout(gate=GATE)
+    for gate in ({"gate": GATE}, {"fallback_gate": FALLBACK_GATE}):
+        with pytest.raises(ValueError, match="a gate needs a fallback"):
+            _readout(**gate)
     with pytest.raises(ValueError, match="needs a gate"):
         _readout(fallback=_readout())
     with pytest.raises(ValueError, match="gate must be"):
         _readout(fallback=_readout(), gate=([0.0], [1.0]))
+    with pytest.raises(ValueError, match="fallback_gate must be"):
+        _readout(fallback=_readout(), gate=GATE, fallback_gate=([1.0] * 3, [0.0] * 3))
     with pytest.raises(ValueError, match="no fallback"):
-        _readout().gated(torch.zeros(2, 3))
+        _readout().gated(torch.zeros(2, 3), torch.zeros(2, 3))

@@ -167,16 +167,18 @@ def test_whole_circle_domain_and_a_composed_fallback(tmp_path):
     scale.main(["--train-images", "6", "--updates", "4", "--batch", "4", "--test-images",
                 "6", "--depth", "4", "--max-angle", "3.1416", "--max-cart", "1.8",
                 "--save-readouts", str(tmp_path / "w"), "--fallback-for", str(precise_path),
-                "--gate-low", "-0.9", "0", "-0.27", "--gate-high", "0.9", "2", "0.27"])
+                "--gate-low", "-0.9", "0.9", "-0.27", "--gate-high", "0.9", "2", "0.27",
+                "--fallback-gate-low", "-9", "0.3", "-9", "--fallback-gate-high", "9", "2", "9"])
     wide = scale.StateReadout.load(tmp_path / "w" / "readout_none_6.pt")
     assert wide.domain == ([-1.8, -1.0, -1.0], [1.8, 1.0, 1.0])
     composed = scale.StateReadout.load(tmp_path / "w" / "composed_none_6.pt")
     precise = scale.StateReadout.load(precise_path)
     # the precise readout's weights, units and domain, the fresh fit as its fallback
-    assert composed.domain == precise.domain and composed.gate == ([-0.9, 0, -0.27],
-                                                                    [0.9, 2, 0.27])
+    assert composed.domain == precise.domain
+    assert composed.gate == ([-0.9, 0.9, -0.27], [0.9, 2, 0.27])
+    assert composed.fallback_gate == ([-9, 0.3, -9], [9, 2, 9])
     images = torch.randint(0, 256, (8, 64, 64, 3), dtype=torch.uint8)
-    inside = composed.gated(wide(images))
+    inside = composed.gated(precise(images), wide(images))
     expected = torch.where(inside[:, None], precise(images), wide(images))
     assert torch.equal(composed(images), expected)
     meta = json.loads((tmp_path / "w" / "composed_none_6.json").read_text())

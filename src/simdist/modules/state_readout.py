@@ -9,9 +9,10 @@ velocities and the teacher's latent from the readings, as a state student would.
 
 A readout fitted precisely on a small domain (the balancing region) extrapolates outside
 it: a student whose pole swings out of that box reads nonsense and cannot bring it back.
-A second, coarse readout fitted on every pose can be attached as the ``fallback``: its
-reading decides whether the image lies inside the precise readout's ``gate`` box, and it
-answers where it does not (benchmarks/README.md, "A readout for the poses outside the
+A second, coarse readout fitted on every pose can be attached as the ``fallback``: it
+answers wherever the precise readout's own reading leaves its ``gate`` box or the
+fallback's reading leaves the ``fallback_gate`` box (a precise readout shown a hanging
+pole may still read an upright one, so the coarse reading has a say) (benchmarks/README.md, "A readout for the poses outside the
 balancing region").
 """
 
@@ -48,11 +49,14 @@ class StateReadout(nn.Module):
         mean: the standardisation's mean of those dimensions (``[len(dims)]``).
         std: its standard deviation (``[len(dims)]``).
         domain: ``(low, high)`` per returned dimension, the fitted region; ``None``: all.
-        fallback: an optional readout of the same dimensions fitted on a wider domain:
-            where its reading of an image lies outside ``gate``, the fallback's reading
-            is returned instead of this readout's extrapolation.
-        gate: ``(low, high)`` per returned dimension, where this readout answers (judged
-            on the fallback's reading); default: ``domain``. Only with a ``fallback``.
+        fallback: an optional readout of the same dimensions fitted on a wider domain,
+            whose reading is returned instead of this readout's extrapolation wherever
+            this readout's reading lies outside ``gate`` or the fallback's lies outside
+            ``fallback_gate``.
+        gate: ``(low, high)`` per returned dimension: this readout answers only where its
+            own reading lies inside; default: ``domain``. Only with a ``fallback``.
+        fallback_gate: ``(low, high)`` per returned dimension: ... and where the
+            fallback's reading lies inside; default: no condition. Only with a fallback.
 
     Examples:
         >>> readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
@@ -65,7 +69,8 @@ class StateReadout(nn.Module):
         False
         >>> wide = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])
         >>> gated = StateReadout(PixelEncoder(4), 5, [0, 1, 2], fallback=wide,
-        ...                      gate=([-1.0, 0.0, -0.3], [1.0, 2.0, 0.3]))
+        ...                      gate=([-0.9, 0.9, -0.3], [0.9, 2.0, 0.3]),
+        ...                      fallback_gate=([-9.0, 0.3, -9.0], [9.0, 2.0, 9.0]))
         >>> gated(images).shape
         torch.Size([2, 7, 3])
     """
@@ -74,7 +79,8 @@ class StateReadout(nn.Module):
                  mean: torch.Tensor | None = None, std: torch.Tensor | None = None,
                  domain: tuple[list[float], list[float]] | None = None,
                  fallback: StateReadout | None = None,
-                 gate: tuple[list[float], list[float]] | None = None):
+                 gate: tuple[list[float], list[float]] | None = None,
+                 fallback_gate: tuple[list[float], list[float]] | None = None):
         super().__init__()
         dims = [int(d) for d in dims]
         if not dims or len(set(dims)) != len(dims) or not all(0 <= d < state_dim for d in dims):
@@ -88,29 +94,19 @@ class StateReadout(nn.Module):
         self.register_buffer("dims", torch.tensor(dims))
         for name in ("mean", "std"):
             check_last_dims(name, getattr(self, name), (n,))
-        if domain is not None:
-            low, high = (list(map(float, side)) for side in domain)
-            if len(low) != n or len(high) != n or any(lo >= hi for lo, hi in zip(low, high)):
-                raise ValueError(f"domain must be (low, high) with {n} values each and "
-                                 f"low < high, got {domain}")
-            domain = (low, high)
-        self.domain = domain
+        self.domain = domain = _box("domain", domain, n)
         if fallback is not None and (fallback.state_dim != state_dim
                                      or fallback.dims.tolist() != dims):
             raise ValueError(f"the fallback readout reads dims {fallback.dims.tolist()} of "
                              f"a {fallback.state_dim}-d state; this one {dims} of {state_dim}")
-        if gate is not None and fallback is None:
+        if (gate is not None or fallback_gate is not None) and fallback is None:
             raise ValueError("a gate needs a fallback readout")
         gate = domain if gate is None and fallback is not None else gate
         if fallback is not None and gate is None:
             raise ValueError("a fallback readout needs a gate (or a domain) to switch on")
-        if gate is not None:
-            low, high = (list(map(float, side)) for side in gate)
-            if len(low) != n or len(high) != n or any(lo >= hi for lo, hi in zip(low, high)):
-                raise ValueError(f"gate must be (low, high) with {n} values each and "
-                                 f"low < high, got {gate}")
-            gate = (low, high)
-        self.fallback, self.gate = fallback, gate
+        self.fallback = fallback
+        self.gate, self.fallback_gate = (_box(name, box, n) for name, box in (
+            ("gate", gate), ("fallback_gate", fallback_gate)))
         self.requires_grad_(False)
         self.eval()
 
@@ -131,7 +127,7 @@ class StateReadout(nn.Module):
             if self.fallback is None:
                 return out
             coarse = self.fallback(x)
-            return torch.where(self.gated(coarse)[..., None], out, coarse)
+            return torch.where(self.gated(out, coarse)[..., None], out, coarse)
         if not x.is_floating_point() or x.shape[-1] != self.out_dim:
             raise ValueError(f"StateReadout reads uint8 images [..., 64, 64, 3] or passes "
                              f"precomputed readings [..., {self.out_dim}]; got "
@@ -148,14 +144,14 @@ class StateReadout(nn.Module):
         return torch.cat([self(pixels[i:i + chunk].to(device)).cpu()
                           for i in range(0, len(pixels), chunk)])
 
-    def gated(self, readings: torch.Tensor) -> torch.Tensor:
-        """Mask ``[...]`` of the (fallback's) readings ``[..., out_dim]`` inside the gate,
-        where this readout answers."""
-        if self.gate is None:
+    def gated(self, readings: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
+        """Mask ``[...]`` of where this readout answers: its ``readings`` ``[..., out_dim]``
+        inside ``gate`` and the fallback's ``coarse`` readings inside ``fallback_gate``."""
+        if self.fallback is None:
             raise ValueError("this readout has no fallback, hence no gate")
-        low = torch.tensor(self.gate[0], device=readings.device, dtype=readings.dtype)
-        high = torch.tensor(self.gate[1], device=readings.device, dtype=readings.dtype)
-        return ((readings >= low) & (readings <= high)).all(-1)
+        inside = _inside(readings, self.gate)
+        return inside if self.fallback_gate is None else inside & _inside(
+            coarse, self.fallback_gate)
 
     def covers(self, state: torch.Tensor) -> torch.Tensor:
         """Mask ``[...]`` of the states ``[..., state_dim]`` inside the fitted domain (of
@@ -163,10 +159,7 @@ class StateReadout(nn.Module):
         check_last_dims("state", state, (self.state_dim,))
         if self.domain is None:
             return torch.ones(state.shape[:-1], dtype=torch.bool, device=state.device)
-        values = state.index_select(-1, self.dims.to(state.device))
-        low = torch.tensor(self.domain[0], device=state.device)
-        high = torch.tensor(self.domain[1], device=state.device)
-        return ((values >= low) & (values <= high)).all(-1)
+        return _inside(state.index_select(-1, self.dims.to(state.device)), self.domain)
 
     def describe(self) -> dict:
         """Plain data that rebuilds this readout (untrained) with :meth:`from_description`."""
@@ -180,7 +173,9 @@ class StateReadout(nn.Module):
                 "domain": None if self.domain is None else [list(s) for s in self.domain],
                 **({} if self.fallback is None else {
                     "fallback": self.fallback.describe(),
-                    "gate": [list(s) for s in self.gate]})}
+                    "gate": [list(s) for s in self.gate],
+                    "fallback_gate": None if self.fallback_gate is None else [
+                        list(s) for s in self.fallback_gate]})}
 
     @classmethod
     def from_description(cls, desc: dict) -> StateReadout:
@@ -189,7 +184,8 @@ class StateReadout(nn.Module):
             fallback = (cls.from_description(desc["fallback"]) if desc.get("fallback")
                         else None)
             return cls(encoder, desc["state_dim"], desc["dims"], domain=desc.get("domain"),
-                       fallback=fallback, gate=desc.get("gate"))
+                       fallback=fallback, gate=desc.get("gate"),
+                       fallback_gate=desc.get("fallback_gate"))
         except (KeyError, TypeError) as e:
             raise ValueError(f"not a StateReadout description ({e!r}): {desc}") from None
 
@@ -227,6 +223,24 @@ class StateReadout(nn.Module):
             if value.is_floating_point() and not torch.isfinite(value).all():
                 raise ValueError(f"{path}: {name} holds NaN or inf")
         return readout
+
+
+def _box(name: str, box, n: int) -> tuple[list[float], list[float]] | None:
+    """``box`` as ``(low, high)`` lists of ``n`` floats with low < high, or None."""
+    if box is None:
+        return None
+    low, high = (list(map(float, side)) for side in box)
+    if len(low) != n or len(high) != n or any(lo >= hi for lo, hi in zip(low, high)):
+        raise ValueError(f"{name} must be (low, high) with {n} values each and low < high, "
+                         f"got {box}")
+    return low, high
+
+
+def _inside(values: torch.Tensor, box: tuple[list[float], list[float]]) -> torch.Tensor:
+    """Mask ``[...]`` of ``values`` ``[..., n]`` inside ``box`` on every dimension."""
+    low = torch.tensor(box[0], device=values.device, dtype=values.dtype)
+    high = torch.tensor(box[1], device=values.device, dtype=values.dtype)
+    return ((values >= low) & (values <= high)).all(-1)
 
 
 class ReadoutEncoder(nn.Module):
