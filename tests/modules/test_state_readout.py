@@ -186,6 +186,7 @@ def test_fallback_answers_where_either_reading_leaves_its_gate():
     # by hand: the precise reading inside both gates, the fallback's everywhere else
     assert torch.equal(out, torch.where(inside[..., None], fine, coarse))
     assert torch.equal(gated.gated(fine, coarse), inside)
+    assert torch.equal(gated.without_fallback()(images), fine)
     # each gate alone sends an image to the fallback: put every reading in, then out
     with torch.no_grad():
         for r in (precise, gated, wide):

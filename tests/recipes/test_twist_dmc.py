@@ -799,6 +799,32 @@ def test_committed_cartpole_readout_reads_rendered_poses():
     readings = readout.read(images)
     assert (readings[:, 0] - poses[:, 0]).abs().max() < 0.15
     assert (readings[:, 2] - poses[:, 1].sin()).abs().max() < 0.05
+    # the balancing region is the precise readout's: its fallback never answers there
+    assert torch.equal(readings, readout.without_fallback().read(images))
+
+
+def test_committed_cartpole_readout_does_not_read_a_fallen_pole_as_upright():
+    """Outside the balancing region the committed readout's coarse fallback answers
+    (docs/methods.md, section 2.7 item 5): a pole at or below the horizontal must not be
+    read as upright, which the precise readout alone does."""
+    from simdist.envs import VisualRandomisation
+    from simdist.pipelines import control_env
+
+    recipe = _recipe_module()
+    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    poses = torch.tensor([[0.0, 3.1], [0.3, -3.0], [-0.4, 2.0], [0.2, -1.9], [0.0, 2.6],
+                          [-0.2, -2.5]])
+    env = control_env("cartpole-balance", 4, pixels=True, visual=VisualRandomisation.training())
+    try:
+        sim = env.base_env.sims[0]
+        images = torch.stack([torch.from_numpy(sim.render_configuration(q))
+                              for q in poses.numpy()])
+    finally:
+        env.close()
+    readings = readout.read(images)
+    assert (readings[:, 1] < 0.5).all(), readings  # cos: well below upright
+    alone = readout.without_fallback().read(images)
+    assert not readout.gated(alone, readout.fallback.read(images)).any()
 
 
 def test_reading_noise_is_drawn_in_updates_at_the_readouts_spread():

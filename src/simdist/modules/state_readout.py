@@ -12,8 +12,8 @@ it: a student whose pole swings out of that box reads nonsense and cannot bring 
 A second, coarse readout fitted on every pose can be attached as the ``fallback``: it
 answers wherever the precise readout's own reading leaves its ``gate`` box or the
 fallback's reading leaves the ``fallback_gate`` box (a precise readout shown a hanging
-pole may still read an upright one, so the coarse reading has a say) (benchmarks/README.md, "A readout for the poses outside the
-balancing region").
+pole may still read an upright one, so the coarse reading has a say; benchmarks/README.md,
+"What the perception gap is made of").
 """
 
 from __future__ import annotations
@@ -143,6 +143,14 @@ class StateReadout(nn.Module):
         device = self.mean.device
         return torch.cat([self(pixels[i:i + chunk].to(device)).cpu()
                           for i in range(0, len(pixels), chunk)])
+
+    def without_fallback(self) -> StateReadout:
+        """This readout alone (its weights shared, no fallback): what it reads everywhere,
+        extrapolating outside its domain."""
+        alone = StateReadout(self.encoder, self.state_dim, self.dims.tolist(), self.mean,
+                             self.std, self.domain)
+        alone.head = self.head
+        return alone
 
     def gated(self, readings: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
         """Mask ``[...]`` of where this readout answers: its ``readings`` ``[..., out_dim]``
