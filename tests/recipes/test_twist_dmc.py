@@ -782,20 +782,10 @@ def test_committed_cartpole_readout_reads_rendered_poses():
     """The committed artefact, on fresh renders under TWIST's training randomisation:
     fitted to ~.01 on the pole's sine and ~.04 m on the cart (its .json), so it must read
     these poses to a few hundredths."""
-    from simdist.envs import VisualRandomisation
-    from simdist.pipelines import control_env
-
-    recipe = _recipe_module()
-    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    readout = _committed_readout()
     poses = torch.tensor([[0.0, 0.0], [0.5, 0.2], [-0.7, -0.25], [0.3, -0.1], [-0.2, 0.1],
                           [0.8, 0.05]])
-    env = control_env("cartpole-balance", 3, pixels=True, visual=VisualRandomisation.training())
-    try:
-        sim = env.base_env.sims[0]
-        images = torch.stack([torch.from_numpy(sim.render_configuration(q))
-                              for q in poses.numpy()])
-    finally:
-        env.close()
+    images = _render_poses(poses, seed=3)
     readings = readout.read(images)
     assert (readings[:, 0] - poses[:, 0]).abs().max() < 0.15
     assert (readings[:, 2] - poses[:, 1].sin()).abs().max() < 0.05
@@ -806,25 +796,35 @@ def test_committed_cartpole_readout_reads_rendered_poses():
 def test_committed_cartpole_readout_does_not_read_a_fallen_pole_as_upright():
     """Outside the balancing region the committed readout's coarse fallback answers
     (docs/methods.md, section 2.7 item 5): a pole at or below the horizontal must not be
-    read as upright, which the precise readout alone does."""
-    from simdist.envs import VisualRandomisation
-    from simdist.pipelines import control_env
-
-    recipe = _recipe_module()
-    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
-    poses = torch.tensor([[0.0, 3.1], [0.3, -3.0], [-0.4, 2.0], [0.2, -1.9], [0.0, 2.6],
-                          [-0.2, -2.5]])
-    env = control_env("cartpole-balance", 4, pixels=True, visual=VisualRandomisation.training())
-    try:
-        sim = env.base_env.sims[0]
-        images = torch.stack([torch.from_numpy(sim.render_configuration(q))
-                              for q in poses.numpy()])
-    finally:
-        env.close()
+    read as upright, which the precise readout alone may do."""
+    readout = _committed_readout()
+    images = _render_poses(torch.tensor([[0.0, 3.1], [0.3, -3.0], [-0.4, 2.0], [0.2, -1.9],
+                                         [0.0, 2.6], [-0.2, -2.5]]), seed=4)
     readings = readout.read(images)
     assert (readings[:, 1] < 0.5).all(), readings  # cos: well below upright
     alone = readout.without_fallback().read(images)
     assert not readout.gated(alone, readout.fallback.read(images)).any()
+
+
+def _committed_readout():
+    recipe = _recipe_module()
+    return recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+
+
+def _render_poses(poses: torch.Tensor, seed: int) -> torch.Tensor:
+    """``[N, 64, 64, 3]`` renders of (cart x, pole angle) rows under TWIST's training
+    randomisation."""
+    from simdist.envs import VisualRandomisation
+    from simdist.pipelines import control_env
+
+    env = control_env("cartpole-balance", seed, pixels=True,
+                      visual=VisualRandomisation.training())
+    try:
+        sim = env.base_env.sims[0]
+        return torch.stack([torch.from_numpy(sim.render_configuration(q))
+                            for q in poses.numpy()])
+    finally:
+        env.close()
 
 
 def test_reading_noise_is_drawn_in_updates_at_the_readouts_spread():
