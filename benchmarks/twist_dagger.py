@@ -48,7 +48,7 @@ def labelled(twist: TwistStudent, episodes: list) -> tuple[torch.Tensor, torch.T
     features, targets = [], []
     with torch.no_grad():
         for episode in episodes:
-            recipe.recorded_images(episode)  # the student reads D's images: a clear error without
+            recipe.recorded_images(episode)  # a clear error where D holds no images
             teacher, student = twist.distillation.filter_both(episode.unsqueeze(0))
             features.append(DreamerWorldModel.features(student)[0])
             targets.append(twist.teacher.actor(DreamerWorldModel.features(teacher))[0])
@@ -78,10 +78,7 @@ def run_config(outputs: Path, episodes: int) -> recipe.Config:
     if not path.exists():
         raise FileNotFoundError(f"no recipe run at {outputs}: run `python recipes/twist_dmc.py "
                                 f"--output-dir {outputs}` first")
-    saved = json.loads(path.read_text())
-    fields = {f.name for f in dataclasses.fields(recipe.Config)}
-    return recipe.Config(**{**{k: v for k, v in saved.items() if k in fields},
-                            "eval_episodes": episodes})
+    return dataclasses.replace(recipe.saved_config(outputs), eval_episodes=episodes)
 
 
 def main():

@@ -209,13 +209,10 @@ def fitted_readout(encoder: PixelEncoder, head: torch.nn.Linear, mean: torch.Ten
 def save_composed(args, fallback: StateReadout, path: Path) -> Path:
     """``args.fallback_for`` with ``fallback`` attached (answering outside the gates), saved
     to ``path`` with the precise readout's description and meta, and the fallback's."""
-    precise = StateReadout.load(args.fallback_for)
-    composed = StateReadout(precise.encoder, precise.state_dim, precise.dims.tolist(),
-                            precise.mean, precise.std, precise.domain, fallback=fallback,
-                            gate=(args.gate_low, args.gate_high),
-                            fallback_gate=None if args.fallback_gate_low is None else (
-                                args.fallback_gate_low, args.fallback_gate_high))
-    composed.head.load_state_dict(precise.head.state_dict())
+    composed = StateReadout.load(args.fallback_for).with_fallback(
+        fallback, gate=(args.gate_low, args.gate_high),
+        fallback_gate=None if args.fallback_gate_low is None else (
+            args.fallback_gate_low, args.fallback_gate_high))
     meta = json.loads(args.fallback_for.with_suffix(".json").read_text())
     meta.pop("readout", None)
     fallback_meta = json.loads(path.with_name(path.name.replace("composed_", "readout_"))

@@ -187,6 +187,8 @@ def test_fallback_answers_where_either_reading_leaves_its_gate():
     assert torch.equal(out, torch.where(inside[..., None], fine, coarse))
     assert torch.equal(gated.gated(fine, coarse), inside)
     assert torch.equal(gated.without_fallback()(images), fine)
+    rebuilt = precise.with_fallback(wide, gate=GATE, fallback_gate=FALLBACK_GATE)
+    assert torch.equal(rebuilt(images), out)  # the same weights, composed anew
     # each gate alone sends an image to the fallback: put every reading in, then out
     with torch.no_grad():
         for r in (precise, gated, wide):

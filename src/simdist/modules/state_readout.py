@@ -144,13 +144,21 @@ class StateReadout(nn.Module):
         return torch.cat([self(pixels[i:i + chunk].to(device)).cpu()
                           for i in range(0, len(pixels), chunk)])
 
+    def with_fallback(self, fallback: StateReadout | None,
+                      gate: tuple[list[float], list[float]] | None = None,
+                      fallback_gate: tuple[list[float], list[float]] | None = None
+                      ) -> StateReadout:
+        """This readout (its weights shared) with another ``fallback`` and gates, or with
+        none (``fallback=None``): what it reads alone, extrapolating outside its domain."""
+        out = StateReadout(self.encoder, self.state_dim, self.dims.tolist(), self.mean,
+                           self.std, self.domain, fallback=fallback, gate=gate,
+                           fallback_gate=fallback_gate)
+        out.head = self.head
+        return out
+
     def without_fallback(self) -> StateReadout:
-        """This readout alone (its weights shared, no fallback): what it reads everywhere,
-        extrapolating outside its domain."""
-        alone = StateReadout(self.encoder, self.state_dim, self.dims.tolist(), self.mean,
-                             self.std, self.domain)
-        alone.head = self.head
-        return alone
+        """This readout alone (:meth:`with_fallback` of none)."""
+        return self.with_fallback(None)
 
     def gated(self, readings: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
         """Mask ``[...]`` of where this readout answers: its ``readings`` ``[..., out_dim]``
