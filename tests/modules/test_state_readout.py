@@ -151,6 +151,17 @@ def test_readout_student_saves_and_reloads_and_acts_the_same(tmp_path, gated):
     assert torch.equal(loaded.student.encoder(images), twist.student.encoder(images))
 
 
+@pytest.mark.parametrize("saved_gated", [False, True])
+def test_a_student_saved_with_the_other_kind_of_readout_is_refused_clearly(saved_gated):
+    saved = _readout_student(_gated()[0] if saved_gated else None).state_dict()
+    other = _readout_student(None if saved_gated else _gated()[0])
+    before = {k: v.clone() for k, v in other.student.state_dict().items()}
+    has = "has" if saved_gated else "has no"
+    with pytest.raises(ValueError, match=f"readout {has} fallback.*twist_redeploy_readout"):
+        other.load_state_dict(saved)
+    assert all(torch.equal(v, before[k]) for k, v in other.student.state_dict().items())
+
+
 def test_readout_encoder_refuses_a_state_encoder_of_another_width():
     with pytest.raises(ValueError, match="reads 5 values, the readout gives 3"):
         ReadoutEncoder(_readout(), StateEncoder(5, 8, 8))

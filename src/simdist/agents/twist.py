@@ -209,6 +209,23 @@ class TwistStudent(ckpt_format.LoadableAgent):
         return {"student": self.student.state_dict(), "optim": self.optim.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
+        """Restores :meth:`state_dict`'s output into a student built the same way.
+
+        Raises:
+            ValueError: if the saved student's readout has a fallback readout and this
+                one has none, or the other way round (a student saved before the task's
+                committed readout gained its fallback); the message says how to re-deploy.
+        """
+        own, saved = set(self.student.state_dict()), set(state["student"])
+        fallback = sorted(k for k in own ^ saved if ".fallback." in f".{k}")
+        if fallback:
+            has = "has" if any(k in saved for k in fallback) else "has no"
+            raise ValueError(
+                f"the saved student's state readout {has} fallback readout and this "
+                f"student's is the other way ({len(fallback)} keys differ, e.g. "
+                f"{fallback[0]!r}): it was saved with another readout file. Build the "
+                "student with the readout it was trained with, or re-deploy a finished "
+                "run through today's file with benchmarks/twist_redeploy_readout.py")
         self.student.load_state_dict(state["student"])
         self.optim.load_state_dict(state["optim"])
 
