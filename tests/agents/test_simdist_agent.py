@@ -57,6 +57,22 @@ def test_finetune_update_moves_only_dynamics_and_whole_ablation_moves_encoder(mi
     assert {"dynamics", "encoder"} <= changed
 
 
+def test_finetune_update_reports_the_slice_errors_it_trained_on():
+    agent = _agent(obs_dim=4, action_dim=2)
+    batch = linear_system_batch(batch=6, time=8, obs_dim=4)
+    before = agent.finetune_slice_errors(batch.clone())
+    assert before.shape == (6,) and (before > 0).all()
+    plain = copy.deepcopy(agent)
+    metrics, errors = agent.finetune_update(batch.clone(), slice_errors=True)
+    torch.testing.assert_close(errors, before)  # measured before the step it drives
+    assert metrics == plain.finetune_update(batch.clone())  # same step, same metrics
+    assert "slice_error" not in metrics
+    after = agent.finetune_slice_errors(batch.clone())
+    assert not torch.equal(after, before)
+    _, whole_errors = agent.finetune_whole_update(batch.clone(), slice_errors=True)
+    assert whole_errors.shape == (6,)
+
+
 def test_pretraining_updates_reduce_the_loss():
     agent = _agent(obs_dim=4, action_dim=2, lr=3e-3)
     batch = linear_system_batch(batch=16, time=10, obs_dim=4)

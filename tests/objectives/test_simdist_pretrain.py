@@ -132,6 +132,35 @@ def test_finetune_head_terms_equal_hand_computation():
     torch.testing.assert_close(reference["loss_consistency"], out["loss_consistency"])
 
 
+def test_slice_errors_and_priority_weights_equal_hand_computation():
+    wm = _model()
+    td = linear_system_batch(batch=3, time=5, obs_dim=4)
+    loss = DynamicsFinetuneLoss(wm, horizon=2)
+    z = wm.encode_sequence(td["observation"], td["is_init"].squeeze(-1))
+    per_slice = []  # [B] mean over the slice's starts and steps of ||z^ - z||^2
+    for b in range(3):
+        errors = []
+        for t in range(3):
+            zi = z[b, t]
+            for i in range(2):
+                zi = wm.next(zi[None], td["action"][b, t + i][None])[0]
+                errors.append(((zi - z[b, t + i + 1]) ** 2).sum())
+        per_slice.append(torch.stack(errors).mean())
+    per_slice = torch.stack(per_slice)
+    out = loss(td)
+    torch.testing.assert_close(out["slice_error"], per_slice.detach())
+    weight = torch.tensor([1.0, 0.5, 0.25])
+    weighted = td.clone()
+    weighted["priority_weight"] = weight[:, None, None].expand(3, 5, 1).clone()
+    torch.testing.assert_close(loss(weighted)["loss_consistency"],
+                               (weight * per_slice).sum() / weight.sum())
+    weighted["priority_weight"] = torch.ones(3, 5, 1)  # unit weights: the plain loss
+    torch.testing.assert_close(loss(weighted)["loss_consistency"], out["loss_consistency"])
+    weighted["priority_weight"][1] = float("nan")
+    with pytest.raises(ValueError, match="priority_weight"):
+        loss(weighted)
+
+
 def test_finetuning_through_frozen_heads_changes_only_the_dynamics():
     wm = _model()
     loss = DynamicsFinetuneLoss(wm, horizon=3, reward_weight=1.0, value_weight=1.0)

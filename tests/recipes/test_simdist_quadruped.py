@@ -239,8 +239,10 @@ def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, mes
 
 
 def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, tiny_expert):
+    # with prioritised finetuning slices: each member ranks the slices by its own error
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
-                "--budgets-min", 0.02, "--output-dir", tmp_path, "--threads", 1)
+                "--budgets-min", 0.02, "--finetune-priority-alpha", 0.6,
+                "--output-dir", tmp_path, "--threads", 1)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
     pretrain = json.loads((stages / "pretrain.json").read_text())["result"]
@@ -259,6 +261,12 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
     results = json.loads((tmp_path / "results.json").read_text())
     assert len(results["curves"]["SimDist: finetune dynamics"]) == 2
     assert (tmp_path / "rerun_after.rrd").stat().st_size > 0
+    # every member's checkpoint keeps its own measured priorities (resume draws the same)
+    member_0, member_1 = (torch.load(stages / "round_1" / f"simdist{tag}.ckpt",
+                                     weights_only=True)["state"]["priorities"]["priority"]
+                          for tag in ("", "_member_1"))
+    assert member_0.shape == member_1.shape and (member_0 > 0).all()
+    assert not torch.equal(member_0, member_1) and not torch.equal(member_0, torch.ones_like(member_0))
 
 
 def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert):

@@ -233,31 +233,50 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self._apply(sum(v for k, v in out.items() if k.startswith("loss_")), self.pretrain_optim)
         return {k: v.item() for k, v in out.items()}
 
-    def _finetune(self, batch: TensorDictBase, whole_model: bool, optim) -> dict[str, float]:
+    def _finetune(self, batch: TensorDictBase, whole_model: bool, optim,
+                  slice_errors: bool = False):
         """Every member's finetuning loss on ``batch``, their mean applied; the metrics
-        are the members' means."""
+        are the members' means (with ``slice_errors``, also each slice's consistency
+        error before the step, averaged over members)."""
         batch = batch.to(self.device)
         with self._autocast():
             outs = [loss.consistency_all_parts(batch) if whole_model else loss(batch)
                     for loss in self.finetune_losses]
         total = sum(v for out in outs for k, v in out.items() if k.startswith("loss_"))
         self._apply(total / len(outs), optim)
-        return {k: sum(out[k].item() for out in outs) / len(outs) for k in outs[0].keys()}
+        metrics = {k: sum(out[k].item() for out in outs) / len(outs) for k in outs[0].keys()
+                   if k != "slice_error"}
+        if not slice_errors:
+            return metrics
+        return metrics, sum(out["slice_error"].float().cpu() for out in outs) / len(outs)
 
-    def finetune_update(self, batch: TensorDictBase) -> dict[str, float]:
+    def finetune_update(self, batch: TensorDictBase, *, slice_errors: bool = False):
         """SimDist's finetuning: the dynamics (every member's, with
-        ``config.dynamics_members`` > 1) on target slices; nothing else moves."""
-        return self._finetune(batch, False, self.finetune_optim)
+        ``config.dynamics_members`` > 1) on target slices; nothing else moves.
 
-    def finetune_whole_update(self, batch: TensorDictBase) -> dict[str, float]:
+        Returns the step's metrics; with ``slice_errors``, ``(metrics, errors)`` where
+        ``errors`` (``[slices]``) is each slice's consistency error (the priorities of
+        :class:`~simdist.data.prioritised_slices.PrioritisedSlices`)."""
+        return self._finetune(batch, False, self.finetune_optim, slice_errors)
+
+    def finetune_whole_update(self, batch: TensorDictBase, *, slice_errors: bool = False):
         """Ablation: the finetuning loss on target data with every part trainable.
 
         Target data carries no value labels, so by default the ablation uses the
         consistency term alone but lets it move the encoder (the heads' shared latent);
         with ``finetune_reward_weight``/``finetune_value_weight`` the head terms train the
-        heads as well.
+        heads as well. ``slice_errors`` as in :meth:`finetune_update`.
         """
-        return self._finetune(batch, True, self.whole_optim)
+        return self._finetune(batch, True, self.whole_optim, slice_errors)
+
+    @torch.no_grad()
+    def finetune_slice_errors(self, batch: TensorDictBase) -> torch.Tensor:
+        """Each slice's consistency error under the current dynamics (members' mean),
+        ``[slices]``, without a step: the starting priorities of prioritised finetuning."""
+        batch = batch.to(self.device)
+        with self._autocast():
+            errors = [loss(batch)["slice_error"].float().cpu() for loss in self.finetune_losses]
+        return sum(errors) / len(errors)
 
     def policy(self, action_low=None, action_high=None, config: PlannerConfig | None = None,
                seed: int = 0, compile: bool = False, *, action_spec=None) -> SimDistPolicy:

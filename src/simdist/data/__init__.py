@@ -4,6 +4,8 @@ from simdist.data.dataset import (DatasetConfig, collect_shards, generate_datase
                                   load_dataset, shard_seed)
 from simdist.data.mixture import EpisodeMixture
 from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
+from simdist.data.prioritised_slices import PrioritisedSlices, prioritised_update
 
 __all__ = ["ActionPerturbation", "PerturbationSchedule", "EpisodeMixture", "DatasetConfig",
-           "collect_shards", "generate_dataset", "generate_shard", "load_dataset", "shard_seed"]
+           "collect_shards", "generate_dataset", "generate_shard", "load_dataset", "shard_seed",
+           "PrioritisedSlices", "prioritised_update"]

@@ -185,7 +185,11 @@ class DynamicsFinetuneLoss(SimdistLoss):
     :meth:`trainable_parameters` is the dynamics' parameters alone. With both weights 0
     (the default, the reference's loss) no head is evaluated with gradient; the frozen
     reward head's error on the predicted latents is reported either way
-    (``reward_error_on_predictions``).
+    (``reward_error_on_predictions``), and so is each slice's consistency error
+    (``slice_error``, ``[B]``: the priority of
+    :class:`~simdist.data.prioritised_slices.PrioritisedSlices`). A ``priority_weight``
+    entry in the input (that sampler's importance weights) weighs each slice's windows in
+    every term.
 
     Examples:
         >>> wm = SimDistWorldModel.build(obs_dim=6, action_dim=2, size="tiny")
@@ -205,6 +209,7 @@ class DynamicsFinetuneLoss(SimdistLoss):
         action: NestedKey = "action"
         reward: NestedKey = ("next", "reward")
         is_init: NestedKey = "is_init"
+        priority_weight: NestedKey = "priority_weight"
 
     default_keys = _AcceptedKeys
 
@@ -243,7 +248,18 @@ class DynamicsFinetuneLoss(SimdistLoss):
         with torch.set_grad_enabled(whole_model):  # frozen: the encoder builds no graph
             latents = wm.encode_sequence(self.read(td, "observation"), is_init)
         predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
-        out = {"loss_consistency": masked_mean((predicted - targets.detach()).pow(2).sum(-1), mask)}
+        error = (predicted - targets.detach()).pow(2).sum(-1)                   # [B, S, H]
+        with torch.no_grad():
+            slice_error = (error * mask).sum((1, 2)) / mask.sum((1, 2)).clamp_min(1.0)
+        if self.tensor_keys.priority_weight in td.keys(include_nested=True):
+            # Prioritised slices: each slice's windows count by its importance weight
+            # (self-normalised, so the loss keeps its scale).
+            weight = self.read(td, "priority_weight").reshape(B, T, -1)[:, 0, 0]
+            if not (torch.isfinite(weight).all() and (weight >= 0).all()):
+                raise ValueError("priority_weight must be finite and >= 0")
+            mask = mask * weight.to(mask.dtype)[:, None, None]
+        out = {"loss_consistency": masked_mean(error, mask),
+               "slice_error": slice_error}
         S = T - H
         act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]
         reward_t = self.read_scalar(td, "reward", (B, T)).unfold(1, H, 1)[:, :S].transpose(-1, -2)[:, :, 1:]

@@ -41,6 +41,7 @@ from simdist.agents import SimDistAgent, SimDistConfig
 from simdist.data import (DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.data.dataset import read_dataset_meta
+from simdist.data.prioritised_slices import PrioritisedSlices, prioritised_update
 from simdist.envs import TASKS, Layout, describe_ranges, get_target, make_env
 from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, WorldModelEnsemble
@@ -221,6 +222,12 @@ class Config:
     # predicted vs encoded latents. 0 / 0: consistency alone, the reference's finetuning.
     finetune_reward_weight: float = 0.0
     finetune_value_weight: float = 0.0
+    # prioritised finetuning slices (data/prioritised_slices.py): a slice is drawn with
+    # probability ~ (its consistency error under the model being finetuned)^alpha, with
+    # importance weights ^beta. 0: uniform slices (TorchRL's SliceSampler), the reference.
+    # Applies to both finetuned methods (SimDist and the whole-model ablation).
+    finetune_priority_alpha: float = 0.0
+    finetune_priority_beta: float = 0.4
     sac_batch_size: int = 256  # continued-SAC baseline batch size
     output_dir: str = "outputs/simdist_quadruped"  # stages, results and plots go here
     # where the world model and probe train and plan ("cpu", "cuda", "auto"); envs, the
@@ -255,8 +262,8 @@ class Config:
                        "finetune_lr", "sac_batch_size", "pretrain_updates", "ensemble_size")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
                        "model_history", "model_dynamics_hidden", "model_latent_dim", "threads",
-                       "finetune_reward_weight",
-                       "finetune_value_weight", allow_zero=True)
+                       "finetune_reward_weight", "finetune_value_weight",
+                       "finetune_priority_alpha", "finetune_priority_beta", allow_zero=True)
         check(self.model_latent_dim % SIMNORM_GROUP == 0, "model_latent_dim",
               f"must be a multiple of {SIMNORM_GROUP} (SimNorm's group), got {self.model_latent_dim}")
         check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
@@ -567,19 +574,33 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
 
 
 def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[str] | None,
-                          name: str, what: str, sample, stage_dir: Path, logger=None) -> dict:
+                          name: str, what: str, data, uniform_sample, stage_dir: Path,
+                          logger=None) -> dict:
     """One method of a round for every ensemble member: ``cfg.finetune_updates`` resumable
     updates (``name`` "simdist": dynamics only; "whole": the ablation), weights and a
     self-describing agent file saved per member, then the members' planner evaluated in
-    the target. Member 0's files keep the single-model names (``simdist.pt``, ...)."""
+    the target. Member 0's files keep the single-model names (``simdist.pt``, ...).
+
+    Slices of ``data`` (``[episodes, steps]``) come from ``uniform_sample``, or with
+    ``cfg.finetune_priority_alpha > 0`` from :class:`PrioritisedSlices` ranked by the
+    member's own consistency error (measured on every slice before the first update)."""
     saved, agent_files, losses = [], [], []
     for i, path in enumerate(member_paths(pretrained, previous)):
         agent = load_agent(cfg, pretrained, path)
         update, optim = ((agent.finetune_update, agent.finetune_optim) if name == "simdist"
                          else (agent.finetune_whole_update, agent.whole_optim))
+        state = {"wm": agent.world_model, "opt": optim}
+        if cfg.finetune_priority_alpha > 0:  # this model's own errors rank the slices
+            slices = PrioritisedSlices(data, cfg.slice_len, cfg.batch_slices,
+                                       cfg.finetune_priority_alpha, cfg.finetune_priority_beta)
+            slices.measure_all(agent.finetune_slice_errors)
+            sample, update = slices.sample, prioritised_update(update, slices)
+            state["priorities"] = slices
+        else:
+            sample = uniform_sample
         tag = name if i == 0 else f"{name}_member_{i}"
-        hist = train_resumable(update, sample, cfg.finetune_updates,
-                               {"wm": agent.world_model, "opt": optim}, stage_dir / f"{tag}.ckpt",
+        hist = train_resumable(update, sample, cfg.finetune_updates, state,
+                               stage_dir / f"{tag}.ckpt",
                                desc=f"round {k + 1}: {what}" + (f" (member {i})" if i else ""),
                                seed=stage_seed(cfg.seed, f"round_{k + 1}/{tag}"),
                                logger=logger, log_prefix=f"round_{k + 1}/{tag}")
@@ -623,11 +644,11 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     # SimDist: dynamics only, continuing from the previous round's dynamics.
     results.update(finetune_and_evaluate(
         cfg, k, pretrained, previous and previous_members(previous, "simdist"), "simdist",
-        "finetune dynamics", sample, stage_dir, logger))
+        "finetune dynamics", data, sample, stage_dir, logger))
     # Ablation: the whole world model on the same data, same number of updates.
     results.update(finetune_and_evaluate(
         cfg, k, pretrained, previous and previous_members(previous, "whole"), "whole",
-        "finetune whole model", sample, stage_dir, logger))
+        "finetune whole model", data, sample, stage_dir, logger))
 
     # Baseline: continue the expert's SAC on the same target data.
     sac = OfflineSAC(Expert.load(expert_path),
