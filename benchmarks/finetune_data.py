@@ -21,6 +21,9 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
     # the planner after 2000, 8000 and 16000 updates of one run, per-episode fractions to JSON
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 16000 --eval-at 2000 8000 16000 --json ft.json
+    # the same 2000 updates with slices drawn by the model's own error (prioritised replay)
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \
+        RUN/stages/round_2/data --updates 2000 --priority-alpha 0.6 --json ft_prio.json
     # the same without what follows a rollover (25 steps of it kept)
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \
         RUN/stages/round_2/data --updates 2000 --keep-after-rollover 25 --json ft_cut.json
@@ -37,6 +40,7 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
 from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
 
+from simdist.data import PrioritisedSlices, prioritised_update
 from simdist.envs import get_target
 from simdist.objectives.simdist_pretrain import latent_prediction_error
 from simdist.pipelines import as_slices, locomotion_env, rollout
@@ -97,10 +101,21 @@ def finetune(args) -> None:
     report("before")
     data = torch.cat([load_memmap(Path(p))[:, :].select(*recipe.TARGET_KEYS)
                       for p in args.train], 0)
-    if args.keep_after_rollover is None:
-        buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+    step = agent.finetune_update
+    if args.priority_alpha > 0:
+        if args.keep_after_rollover is not None:
+            raise SystemExit("--priority-alpha and --keep-after-rollover do not combine")
+        slices = PrioritisedSlices(data, cfg.slice_len, cfg.batch_slices, args.priority_alpha,
+                                   args.priority_beta)
+        slices.measure_all(agent.finetune_slice_errors)
+        describe_priorities(slices, data, cfg, "before finetuning")
+        sample, step = slices.sample, prioritised_update(agent.finetune_update, slices)
     else:
-        buffer = slices_until_rollover(data, cfg, args.keep_after_rollover)
+        if args.keep_after_rollover is None:
+            buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+        else:
+            buffer = slices_until_rollover(data, cfg, args.keep_after_rollover)
+        sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731
     eval_at = set(args.eval_at or [args.updates])
     if max(eval_at) > args.updates or min(eval_at) < 0:
         raise SystemExit(f"--eval-at must lie in [0, --updates={args.updates}], got {eval_at}")
@@ -119,7 +134,7 @@ def finetune(args) -> None:
     for i in range(args.updates):
         if i in eval_at:
             evaluate(i)
-        metrics = agent.finetune_update(buffer.sample().reshape(-1, cfg.slice_len))
+        metrics = step(sample())
         if i % 1000 == 0 or i == args.updates - 1:
             print(f"update {i}: consistency {metrics['loss_consistency']:.4f}", flush=True)
     if args.updates in eval_at:
@@ -127,11 +142,29 @@ def finetune(args) -> None:
     print(f"{args.updates} updates on {data.numel()} steps and {len(eval_at)} evaluations in "
           f"{time.perf_counter() - start:.0f} s")
     report("after")
+    if args.priority_alpha > 0:
+        describe_priorities(slices, data, cfg, "after finetuning")
     if args.save:
         torch.save(agent.world_model.state_dict(), args.save)
     if args.json:
         Path(args.json).write_text(json.dumps({"lr": cfg.finetune_lr, "train": args.train,
                                                "evaluations": evaluations}, indent=1))
+
+
+def describe_priorities(slices: PrioritisedSlices, data, cfg, when: str) -> None:
+    """Where the prioritised draws go: the share of the probability on the top tenth of
+    slices, and on slices with a step upside down (the rollovers that decide the slow
+    command) against their share of the slices."""
+    from progress_by_command import upside_down_steps  # a sibling script (benchmarks/)
+
+    probability = slices.probabilities()
+    top = probability.sort(descending=True).values[:max(1, len(slices) // 10)].sum()
+    upside_down = upside_down_steps(data["observation"], cfg.task).float()       # [E, T]
+    windows = upside_down.unfold(1, slices.slice_len, 1).amax(-1).reshape(-1).bool()
+    print(f"priorities {when}: top 10% of slices draw {100 * top:.0f}%; slices with a step "
+          f"upside down are {100 * windows.float().mean():.0f}% of the slices and draw "
+          f"{100 * probability[windows].sum():.0f}%; median priority "
+          f"{slices.priority.median():.4f}", flush=True)
 
 
 def slices_until_rollover(data, cfg, keep_after: int) -> TensorDictReplayBuffer:
@@ -181,6 +214,11 @@ def main(argv=None):
     f.add_argument("--keep-after-rollover", type=int, default=None, metavar="STEPS",
                    help="end each training episode this many steps after the quadruped first "
                         "rolls onto its back (default: keep whole episodes)")
+    f.add_argument("--priority-alpha", type=float, default=0.0,
+                   help="draw slices by the model's own consistency error to this power "
+                        "(data/prioritised_slices.py; default 0: uniform, the recipe's)")
+    f.add_argument("--priority-beta", type=float, default=0.4,
+                   help="importance-weight exponent of the prioritised draws")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     (collect if args.step == "collect" else finetune)(args)
