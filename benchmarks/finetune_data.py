@@ -22,10 +22,10 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 16000 --eval-at 2000 8000 16000 --json ft.json
     # the same 2000 updates with slices drawn by the model's own error (prioritised replay)
-    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 2000 --priority-alpha 0.6 --json ft_prio.json
     # the same without what follows a rollover (25 steps of it kept)
-    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 2000 --keep-after-rollover 25 --json ft_cut.json
 """
 
@@ -102,11 +102,15 @@ def finetune(args) -> None:
     data = torch.cat([load_memmap(Path(p))[:, :].select(*recipe.TARGET_KEYS)
                       for p in args.train], 0)
     step = agent.finetune_update
+    if args.priority_alpha < 0 or (args.priority_alpha == 0 and args.priority_beta is not None):
+        raise SystemExit("--priority-alpha must be > 0 to prioritise (0: uniform slices, "
+                         "where --priority-beta means nothing)")
     if args.priority_alpha > 0:
         if args.keep_after_rollover is not None:
             raise SystemExit("--priority-alpha and --keep-after-rollover do not combine")
+        beta = 0.4 if args.priority_beta is None else args.priority_beta
         slices = PrioritisedSlices(data, cfg.slice_len, cfg.batch_slices, args.priority_alpha,
-                                   args.priority_beta)
+                                   beta)
         slices.measure_all(agent.finetune_slice_errors)
         describe_priorities(slices, data, cfg, "before finetuning")
         sample, step = slices.sample, prioritised_update(agent.finetune_update, slices)
@@ -217,8 +221,8 @@ def main(argv=None):
     f.add_argument("--priority-alpha", type=float, default=0.0,
                    help="draw slices by the model's own consistency error to this power "
                         "(data/prioritised_slices.py; default 0: uniform, the recipe's)")
-    f.add_argument("--priority-beta", type=float, default=0.4,
-                   help="importance-weight exponent of the prioritised draws")
+    f.add_argument("--priority-beta", type=float, default=None,
+                   help="importance-weight exponent of the prioritised draws (default 0.4)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     (collect if args.step == "collect" else finetune)(args)

@@ -70,7 +70,17 @@ def test_finetune_update_reports_the_slice_errors_it_trained_on():
     after = agent.finetune_slice_errors(batch.clone())
     assert not torch.equal(after, before)
     _, whole_errors = agent.finetune_whole_update(batch.clone(), slice_errors=True)
-    assert whole_errors.shape == (6,)
+    torch.testing.assert_close(whole_errors, after)
+    # a dynamics ensemble reports its members' mean error per slice
+    torch.manual_seed(0)
+    ensemble = SimDistAgent(SimDistWorldModel.build(4, 2, size="tiny"),
+                            SimDistConfig(horizon=2, dynamics_members=3))
+    members = torch.stack([loss(batch.clone())["slice_error"].detach()
+                           for loss in ensemble.finetune_losses])
+    assert not torch.equal(members[0], members[1])
+    torch.testing.assert_close(ensemble.finetune_slice_errors(batch.clone()), members.mean(0))
+    _, errors = ensemble.finetune_update(batch.clone(), slice_errors=True)
+    torch.testing.assert_close(errors, members.mean(0))
 
 
 def test_pretraining_updates_reduce_the_loss():

@@ -159,6 +159,29 @@ def test_slice_errors_and_priority_weights_equal_hand_computation():
     weighted["priority_weight"][1] = float("nan")
     with pytest.raises(ValueError, match="priority_weight"):
         loss(weighted)
+    weighted["priority_weight"] = torch.ones(3, 5, 2)  # two weights per step
+    with pytest.raises(ValueError, match=r"\[B, T\]"):
+        loss(weighted)
+
+
+def test_slice_errors_average_only_the_windows_inside_one_episode():
+    wm = _model()
+    td = linear_system_batch(batch=2, time=6, obs_dim=4, boundary=3)  # an episode starts at 3
+    out = DynamicsFinetuneLoss(wm, horizon=2)(td)
+    predicted, targets, mask = rollout_windows(
+        wm, wm.encode_sequence(td["observation"], td["is_init"].squeeze(-1)), td["action"],
+        td["is_init"].squeeze(-1), 2)
+    assert 0 < mask.sum() < mask.numel()  # some windows cross the boundary
+    error = ((predicted - targets) ** 2).sum(-1)
+    by_hand = torch.stack([error[b][mask[b] > 0].mean() for b in range(2)])
+    torch.testing.assert_close(out["slice_error"], by_hand.detach())
+    weighted = td.clone()
+    weight = torch.tensor([1.0, 0.2])
+    weighted["priority_weight"] = weight[:, None].expand(2, 6).clone()
+    counts = mask.sum((1, 2))
+    expected = (weight * by_hand * counts).sum() / (weight * counts).sum()
+    torch.testing.assert_close(DynamicsFinetuneLoss(wm, horizon=2)(weighted)["loss_consistency"],
+                               expected.detach(), rtol=1e-5, atol=1e-6)
 
 
 def test_finetuning_through_frozen_heads_changes_only_the_dynamics():

@@ -227,6 +227,8 @@ def test_planner_flags_reach_the_planner_config():
     (["--model-dynamics-hidden", "-8"], "model_dynamics_hidden: must be >= 0"),
     (["--model-latent-dim", "100"], "model_latent_dim: must be a multiple of 8"),
     (["--threads", "-1"], "threads: must be >= 0"),
+    (["--finetune-priority-alpha", "inf"], "finetune_priority_alpha: must be >= 0 and finite"),
+    (["--finetune-priority-beta", "-0.5"], "finetune_priority_beta: must be >= 0"),
     (["--ensemble-size", "0"], "ensemble_size: must be > 0"),
     (["--ensemble-shared-encoder"], "ensemble_shared_encoder: needs --ensemble-size > 1"),
     (["--model-ignored-observations", "toes"], "unknown observation groups ['toes']"),

@@ -2,7 +2,7 @@
 
 Prioritised experience replay (Schaul et al., 2016) over slice *starts*: a slice starting
 at step ``i`` of an episode is drawn with probability ``P(i) = p_i^alpha / sum_j p_j^alpha``
-and carries the importance weight ``w_i = (N P(i))^-beta / max_j (N P(j))^-beta``. In
+and carries the importance weight ``w_i ~ (N P(i))^-beta`` (the largest in a batch is 1). In
 SimDist's dynamics finetuning, ``p_i`` is the model's own latent-consistency error on the
 slice, so the rare target transitions it predicts worst (a slip, a rollover) get more of
 the updates than their share of the data.
@@ -78,10 +78,14 @@ class PrioritisedSlices:
         """The number of starts (slices that fit inside an episode)."""
         return self.priority.numel()
 
+    def log_probabilities(self) -> torch.Tensor:
+        """``log P(i)`` of every start, ``[len(self)]`` (in log space, so a large
+        ``alpha`` cannot overflow ``p^alpha``)."""
+        return torch.log_softmax(self.alpha * torch.log(self.priority.double() + self.eps), 0)
+
     def probabilities(self) -> torch.Tensor:
         """``P(i)`` of every start, ``[len(self)]``."""
-        scaled = (self.priority + self.eps).pow(self.alpha)
-        return scaled / scaled.sum()
+        return self.log_probabilities().exp().float()
 
     def slices(self, starts: torch.Tensor) -> TensorDict:
         """The ``[len(starts), slice_len]`` slices beginning at ``starts`` (start ids).
@@ -93,6 +97,9 @@ class PrioritisedSlices:
         step = starts % self.starts_per_episode
         steps = step[:, None] + torch.arange(self.slice_len)
         out = self.data[episode[:, None], steps].clone()
+        if "is_init" not in out.keys():
+            raise KeyError("PrioritisedSlices needs an 'is_init' entry in the data (add "
+                           "torchrl.envs.InitTracker() to the env that recorded it)")
         is_init = out.get("is_init").clone()
         is_init[:, 0] = True
         out.set("is_init", is_init)
@@ -103,11 +110,14 @@ class PrioritisedSlices:
     def sample(self) -> TensorDict:
         """``batch_slices`` slices drawn by priority, with ``slice_start`` and the
         importance weight ``priority_weight`` (``[slices, slice_len, 1]``, the slice's
-        weight on each of its steps; the largest possible weight is 1)."""
-        probabilities = self.probabilities()
-        starts = torch.multinomial(probabilities, self.batch_slices, replacement=True)
-        weight = (len(self) * probabilities[starts]).pow(-self.beta)
-        weight = weight / (len(self) * probabilities.min()).pow(-self.beta)
+        weight on each of its steps; the batch's largest weight is 1)."""
+        log_p = self.log_probabilities()
+        starts = torch.multinomial(log_p.exp(), self.batch_slices, replacement=True)
+        # w_i = (N P_i)^-beta, scaled so the batch's largest is 1 (the N cancels): a loss
+        # that normalises by the weights' sum only sees their ratios, and a batch-wise
+        # maximum cannot underflow the way the buffer-wide one does with a large alpha
+        log_p = log_p[starts]
+        weight = torch.exp(-self.beta * (log_p - log_p.min())).float()
         out = self.slices(starts)
         out.set("priority_weight", weight[:, None, None].expand(-1, self.slice_len, 1).clone())
         return out

@@ -58,7 +58,10 @@ def complete_windows(is_init: torch.Tensor, history: int) -> torch.Tensor:
 
 
 def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    return (values * mask).sum() / mask.sum().clamp_min(1.0)
+    """The mean of ``values`` where ``mask`` is set, or weighted by a real-valued
+    ``mask`` (importance weights); 0 where nothing is set."""
+    total = mask.sum()
+    return (values * mask).sum() / torch.where(total > 0, total, torch.ones_like(total))
 
 
 class SimDistPretrainLoss(SimdistLoss):
@@ -254,7 +257,11 @@ class DynamicsFinetuneLoss(SimdistLoss):
         if self.tensor_keys.priority_weight in td.keys(include_nested=True):
             # Prioritised slices: each slice's windows count by its importance weight
             # (self-normalised, so the loss keeps its scale).
-            weight = self.read(td, "priority_weight").reshape(B, T, -1)[:, 0, 0]
+            weight = self.read(td, "priority_weight")
+            if weight.shape not in ((B, T), (B, T, 1)):
+                raise ValueError(f"priority_weight must be [B, T] or [B, T, 1] (one weight "
+                                 f"per slice, repeated on its steps), got {tuple(weight.shape)}")
+            weight = weight.reshape(B, T)[:, 0]
             if not (torch.isfinite(weight).all() and (weight >= 0).all()):
                 raise ValueError("priority_weight must be finite and >= 0")
             mask = mask * weight.to(mask.dtype)[:, None, None]

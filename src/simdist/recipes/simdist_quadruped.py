@@ -225,7 +225,9 @@ class Config:
     # prioritised finetuning slices (data/prioritised_slices.py): a slice is drawn with
     # probability ~ (its consistency error under the model being finetuned)^alpha, with
     # importance weights ^beta. 0: uniform slices (TorchRL's SliceSampler), the reference.
-    # Applies to both finetuned methods (SimDist and the whole-model ablation).
+    # Applies to both finetuned methods (SimDist and the whole-model ablation). With alpha
+    # > 0 the logged finetuning losses are importance-weighted means (with beta < 1 they
+    # lean towards the worst slices): compare runs by their evaluations, not their losses.
     finetune_priority_alpha: float = 0.0
     finetune_priority_beta: float = 0.4
     sac_batch_size: int = 256  # continued-SAC baseline batch size
@@ -590,15 +592,16 @@ def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[
         update, optim = ((agent.finetune_update, agent.finetune_optim) if name == "simdist"
                          else (agent.finetune_whole_update, agent.whole_optim))
         state = {"wm": agent.world_model, "opt": optim}
+        tag = name if i == 0 else f"{name}_member_{i}"
         if cfg.finetune_priority_alpha > 0:  # this model's own errors rank the slices
             slices = PrioritisedSlices(data, cfg.slice_len, cfg.batch_slices,
                                        cfg.finetune_priority_alpha, cfg.finetune_priority_beta)
-            slices.measure_all(agent.finetune_slice_errors)
+            if not (stage_dir / f"{tag}.ckpt").exists():  # else its checkpoint restores them
+                slices.measure_all(agent.finetune_slice_errors)
             sample, update = slices.sample, prioritised_update(update, slices)
             state["priorities"] = slices
         else:
             sample = uniform_sample
-        tag = name if i == 0 else f"{name}_member_{i}"
         hist = train_resumable(update, sample, cfg.finetune_updates, state,
                                stage_dir / f"{tag}.ckpt",
                                desc=f"round {k + 1}: {what}" + (f" (member {i})" if i else ""),

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 from typing import Any, Mapping, Sequence, TypeVar
 
@@ -61,12 +62,13 @@ def check_builds(field: str, build, *args) -> None:
 
 
 def check_positive(config: Any, *fields: str, allow_zero: bool = False) -> None:
-    """Each named field of ``config`` is a number > 0 (or >= 0 with ``allow_zero``)."""
+    """Each named field of ``config`` is a finite number > 0 (or >= 0 with
+    ``allow_zero``)."""
     for name in fields:
         value = getattr(config, name)
-        ok = value >= 0 if allow_zero else value > 0
-        check(isinstance(value, (int, float)) and not isinstance(value, bool) and ok, name,
-              f"must be {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        ok = number and math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+        check(ok, name, f"must be {'>= 0' if allow_zero else '> 0'} and finite, got {value!r}")
 
 
 def parse_config(config_type: type[T], presets: Mapping[str, Mapping[str, Any]],
