@@ -69,6 +69,9 @@ class PrioritisedSlices:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
         if eps == 0:
             raise ValueError("eps must be > 0: a start with priority 0 is never drawn again")
+        if "is_init" not in data.keys():
+            raise KeyError("PrioritisedSlices needs an 'is_init' entry in the data (add "
+                           "torchrl.envs.InitTracker() to the env that recorded it)")
         self.data, self.slice_len, self.batch_slices = data, slice_len, batch_slices
         self.alpha, self.beta, self.eps = alpha, beta, eps
         self.starts_per_episode = steps - slice_len + 1
@@ -97,9 +100,6 @@ class PrioritisedSlices:
         step = starts % self.starts_per_episode
         steps = step[:, None] + torch.arange(self.slice_len)
         out = self.data[episode[:, None], steps].clone()
-        if "is_init" not in out.keys():
-            raise KeyError("PrioritisedSlices needs an 'is_init' entry in the data (add "
-                           "torchrl.envs.InitTracker() to the env that recorded it)")
         is_init = out.get("is_init").clone()
         is_init[:, 0] = True
         out.set("is_init", is_init)
