@@ -1,5 +1,6 @@
 """torch.export round trips: each exported step equals the TorchRL policy it comes from."""
 
+import pytest
 import torch
 from tensordict import TensorDict
 
@@ -13,9 +14,11 @@ PLANNER = PlannerConfig(horizon=3, num_samples=40, num_elites=4, iterations=2,
                         policy_fraction=0.1)
 
 
-def test_exported_simdist_step_plans_what_the_torchrl_policy_plans(tmp_path):
+@pytest.mark.parametrize("previous_action", [False, True])
+def test_exported_simdist_step_plans_what_the_torchrl_policy_plans(tmp_path, previous_action):
     torch.manual_seed(0)
-    agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny"))
+    agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny",
+                                                 previous_action=previous_action))
     low, high = -torch.full((3,), 0.8), torch.full((3,), 0.6)
     policy = agent.policy(low, high, PLANNER, seed=7)
     program = export_simdist_policy(policy)
@@ -34,6 +37,9 @@ def test_exported_simdist_step_plans_what_the_torchrl_policy_plans(tmp_path):
         td = TensorDict({"observation": obs, "is_init": is_init}, [B])
         if history_td is not None:
             td.set(("simdist", "history"), history_td)
+        if previous_action:
+            td.set(("simdist", "previous_action"),
+                   torch.zeros(B, 3) if t == 0 else out["next", "simdist", "previous_action"])
         out = policy(td)
         history_td = out["next", "simdist", "history"]
         action, history, mean = run(history, obs, is_init, mean,

@@ -41,7 +41,9 @@ class SimDistPlanStep(nn.Module):
     ``forward(history [B, K, D], observation [B, D], is_init [B, 1] bool,
     previous_mean [B, H, A], sample_noise [I, B, N, H, A], policy_noise [B, P, H, A])``
     returns ``(action [B, A], history [B, K, D], mean [B, H, A])``; feed ``history`` and
-    ``mean`` back in at the next step. ``policy_noise`` is left out when the planner has
+    ``mean`` back in at the next step. (For an encoder that reads the previous action,
+    ``D`` is the observation and action width, and the previous action is the first of
+    ``previous_mean``: the action the last step returned.) ``policy_noise`` is left out when the planner has
     no policy proposals. :meth:`draw_noise` draws the noise exactly as the planner does.
 
     Args:
@@ -68,9 +70,15 @@ class SimDistPlanStep(nn.Module):
     def forward(self, history, observation, is_init, previous_mean, sample_noise,
                 policy_noise=None):
         init = is_init.reshape(-1, 1, 1).bool()
+        enc = self.world_model.encoder
+        previous = None
+        if enc.action_dim:  # the action the last step returned; none at an episode start
+            previous = torch.where(init[:, 0], torch.zeros_like(previous_mean[:, 0]),
+                                   previous_mean[:, 0])
+        step = enc.step_input(observation, previous)
         # a new episode's window repeats its first observation (SimDistPolicy's rule)
-        shifted = torch.cat([history[:, 1:], observation[:, None]], 1)
-        history = torch.where(init, observation[:, None].expand_as(shifted), shifted)
+        shifted = torch.cat([history[:, 1:], step[:, None]], 1)
+        history = torch.where(init, step[:, None].expand_as(shifted), shifted)
         latent = self.world_model.encode(history)
         mean = torch.zeros_like(previous_mean)
         if self.planner.config.warm_start:  # the previous plan shifted by one step
@@ -96,7 +104,7 @@ class SimDistPlanStep(nn.Module):
         """Inputs of an episode's first step: empty history, ``is_init`` set, no plan."""
         enc, c = self.world_model.encoder, self.planner.config
         device = self.planner.action_low.device
-        return (torch.zeros(batch_size, enc.history, enc.obs_dim, device=device),
+        return (torch.zeros(batch_size, enc.history, enc.input_dim, device=device),
                 torch.zeros(batch_size, enc.obs_dim, device=device),
                 torch.ones(batch_size, 1, dtype=torch.bool, device=device),
                 torch.zeros(batch_size, c.horizon, self.planner.action_dim, device=device),

@@ -193,3 +193,43 @@ def test_with_dynamics_refuses_a_dynamics_of_another_latent_size():
     wm = SimDistWorldModel.build(4, 2, size="tiny")
     with pytest.raises(ValueError):
         wm.with_dynamics(MLPDynamics(latent_dim=8, action_dim=2, hidden=16, simnorm_groups=4))
+
+
+def test_a_policy_whose_encoder_reads_previous_actions_encodes_what_training_encodes(tmp_path):
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(89, 12, size="tiny", history=3, previous_action=True)
+    agent = SimDistAgent(wm, SimDistConfig(horizon=3))
+    env = TransformedEnv(make_env("quadruped-flat", seed=0, max_episode_steps=5, num_envs=2),
+                         InitTracker())
+    env.append_transform(agent.make_primer())
+    spec = env.action_spec
+    policy = agent.policy(spec.space.low[0], spec.space.high[0],
+                          PlannerConfig(horizon=3, num_samples=16, num_elites=4, iterations=1))
+    td = env.rollout(8, policy, break_when_any_done=False)
+    previous = td["next", "simdist", "previous_action"]
+    torch.testing.assert_close(previous, td["action"])   # carried to the next step
+    history = td["next", "simdist", "history"]             # [2, 8, 3, 89 + 12]
+    assert history.shape[-1] == 101
+    # newest entry: (o_t, a_{t-1}); zeros at an episode's first step (steps 0 and 5)
+    torch.testing.assert_close(history[:, 6, -1], torch.cat([td["observation"][:, 6],
+                                                            td["action"][:, 5]], -1))
+    assert td["is_init"][:, 5].all() and (history[:, 5, :, 89:] == 0).all()
+    # the latent the policy planned from is the one training computes from the recording
+    with torch.no_grad():
+        offline = wm.encode_sequence(td["observation"], td["is_init"][..., 0], td["action"])
+    torch.testing.assert_close(td["planner", "latent"], offline)
+    # the losses read the actions too, and an env without the primer's key is refused
+    batch = linear_system_batch(batch=4, time=8, obs_dim=89, action_dim=12)
+    assert torch.isfinite(agent.pretrain_loss(batch)["loss_consistency"])
+    bare = TransformedEnv(make_env("quadruped-flat", seed=0, max_episode_steps=5, num_envs=2),
+                          InitTracker())
+    with pytest.raises(KeyError, match="previous action"):
+        bare.rollout(2, policy)
+    # saved and loaded with the option
+    path = agent.save(tmp_path / "agent.pt")
+    loaded = SimDistAgent.load(path)
+    assert loaded.world_model.encoder.action_dim == 12
+    with torch.no_grad():
+        torch.testing.assert_close(
+            loaded.world_model.encode_sequence(td["observation"], td["is_init"][..., 0],
+                                               td["action"]), offline)

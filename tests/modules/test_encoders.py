@@ -143,3 +143,38 @@ def test_history_encoder_ignores_the_inputs_it_is_told_to():
 def test_history_encoder_refuses_impossible_ignored_inputs(ignored, message):
     with pytest.raises(ValueError, match=message):
         HistoryEncoder(obs_dim=5, history=2, latent_dim=8, hidden=16, ignored_inputs=ignored)
+
+
+def test_history_encoder_reads_each_steps_previous_action_zero_at_an_episode_start():
+    enc = HistoryEncoder(obs_dim=2, history=3, latent_dim=8, hidden=16, simnorm_groups=None,
+                         action_dim=1)
+    assert (enc.input_dim, enc.context) == (3, 4)
+    obs = torch.arange(12.0).reshape(1, 6, 2)
+    actions = torch.tensor([[10.0, 11.0, 12.0, 13.0, 14.0, 15.0]])[..., None]
+    is_init = torch.tensor([[True, False, False, True, False, False]])
+    w = enc.windows(obs, is_init, actions)                     # [1, 6, 3, 3]
+    # step 2: o_0..o_2 with a_{-1} = 0 (episode start), a_0, a_1
+    torch.testing.assert_close(w[0, 2], torch.tensor([[0.0, 1, 0], [2, 3, 10], [4, 5, 11]]))
+    # step 4 (second step of the episode that starts at 3): clamped to (o_3, 0), then (o_4, a_3)
+    torch.testing.assert_close(w[0, 4], torch.tensor([[6.0, 7, 0], [6, 7, 0], [8, 9, 13]]))
+    # the same latents as encoding the windows directly, and the actions matter
+    z = enc.encode_sequence(obs, is_init, actions)
+    torch.testing.assert_close(z, enc(w))
+    assert not torch.allclose(z[0, 2], enc.encode_sequence(obs, is_init, actions + 1)[0, 2])
+
+
+def test_history_encoder_with_previous_actions_refuses_missing_or_misshapen_actions():
+    enc = HistoryEncoder(obs_dim=2, history=2, latent_dim=8, hidden=16, action_dim=3)
+    obs, is_init = torch.zeros(2, 5, 2), torch.zeros(2, 5, dtype=torch.bool)
+    with pytest.raises(ValueError, match="previous action"):
+        enc.encode_sequence(obs, is_init)
+    with pytest.raises(ValueError, match="actions must have shape"):
+        enc.encode_sequence(obs, is_init, torch.zeros(2, 5, 2))
+    with pytest.raises(ValueError, match="NaN or inf|finite"):
+        enc.encode_sequence(obs, is_init, torch.full((2, 5, 3), float("nan")))
+    with pytest.raises(ValueError, match="action_dim"):
+        HistoryEncoder(obs_dim=2, action_dim=-1)
+    # an encoder without previous actions ignores them: the same latents either way
+    plain = HistoryEncoder(obs_dim=2, history=2, latent_dim=8, hidden=16)
+    torch.testing.assert_close(plain.encode_sequence(obs, is_init),
+                               plain.encode_sequence(obs, is_init, torch.ones(2, 5, 7)))

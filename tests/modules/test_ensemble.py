@@ -105,3 +105,17 @@ def test_mismatched_or_missing_members_are_refused():
     ensemble = WorldModelEnsemble(_members(2))
     with pytest.raises(ValueError, match="latent"):
         ensemble.reward(torch.zeros(4, 5), torch.zeros(4, ACT))
+
+
+def test_an_ensemble_of_models_that_read_previous_actions_encodes_with_them():
+    torch.manual_seed(0)
+    members = [SimDistWorldModel.build(6, 2, size="tiny", previous_action=True) for _ in range(2)]
+    ensemble = WorldModelEnsemble(members)
+    assert (ensemble.encoder.action_dim, ensemble.encoder.context) == (2, 3)
+    obs, actions = torch.randn(3, 5, 6), torch.rand(3, 5, 2)
+    is_init = torch.zeros(3, 5, dtype=torch.bool)
+    z = ensemble.encode_sequence(obs, is_init, actions)
+    torch.testing.assert_close(z, torch.cat([m.encode_sequence(obs, is_init, actions)
+                                             for m in members], -1))
+    with pytest.raises(ValueError, match="previous-action inputs"):
+        WorldModelEnsemble([members[0], SimDistWorldModel.build(6, 2, size="tiny")])

@@ -267,6 +267,28 @@ def test_windows_cut_off_by_the_slice_are_not_trained_on():
     _, _, mask = rollout_windows(wm, z, torch.zeros(2, 6, 2), is_init, horizon=2)
     assert mask[0, :2].sum() == 0 and mask[0, 2:].min() == 1  # mid-episode slice
     assert mask[1, 0].sum() == 0  # start 0 precedes the episode start (and would cross it)
+    # an encoder that reads previous actions reads one step more: a_{t-3} for o_{t-2}
+    wa = SimDistWorldModel.build(obs_dim=4, action_dim=2, size="tiny", history=3,
+                                 previous_action=True)
+    _, _, mask = rollout_windows(wa, z, torch.zeros(2, 6, 2), is_init, horizon=2)
+    assert mask[0, :3].sum() == 0 and mask[0, 3:].min() == 1
+    assert mask[1, 1:].min() == 1  # inside the episode every window is what the robot sees
+
+
+def test_losses_and_the_probe_read_previous_actions_where_the_encoder_does():
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(obs_dim=4, action_dim=2, size="tiny", previous_action=True)
+    td = linear_system_batch(batch=4, time=8, obs_dim=4)
+    pretrain, finetune = SimDistPretrainLoss(wm, horizon=2), DynamicsFinetuneLoss(wm, horizon=2)
+    probe = ProbeLoss(wm.encode_sequence, StateDecoder(wm.latent_dim, 4, hidden=8))
+    for loss in (pretrain, finetune, probe):
+        assert all(torch.isfinite(v).all() for v in loss(td).values())
+    # the latents (hence every term) depend on the recorded actions
+    other = td.clone()
+    other["action"] = other["action"].flip(1)
+    assert pretrain(other)["loss_consistency"] != pretrain(td)["loss_consistency"]
+    with pytest.raises(Exception, match="action"):
+        probe(td.exclude("action"))
 
 
 def test_a_dynamics_ensemble_averages_each_members_terms():

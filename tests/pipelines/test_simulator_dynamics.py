@@ -40,3 +40,13 @@ def test_refuses_what_it_cannot_copy():
         SimulatorDynamics(laggy.sims, history=2, obs_dim=10)
     with pytest.raises(ValueError, match="robot task"):
         SimulatorDynamics(make_env("cartpole-balance", num_envs=1).sims, history=2, obs_dim=5)
+
+
+def test_simulator_planner_refuses_an_encoder_that_reads_previous_actions():
+    from simdist.agents import SimDistAgent
+    from simdist.modules import PlannerConfig, SimDistWorldModel
+    from simdist.pipelines.simulator_dynamics import SimulatorPlanningPolicy
+    agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny", previous_action=True))
+    with pytest.raises(NotImplementedError, match="previous actions"):
+        SimulatorPlanningPolicy(agent, worlds=None, planner_config=PlannerConfig(),
+                                action_low=None, action_high=None, seed=0)

@@ -141,6 +141,17 @@ def test_model_history_sets_the_encoders_window():
     assert default.world_model.encoder.history == 2  # the size's own
 
 
+def test_model_previous_action_makes_the_encoder_and_the_primer_carry_the_last_action():
+    from simdist.recipes.simdist_quadruped import Config, new_agent
+    agent = new_agent(Config(model_size="tiny", model_previous_action=True), obs_dim=10,
+                      action_dim=3)
+    assert agent.world_model.encoder.action_dim == 3
+    primers = agent.make_primer(0).primers
+    assert primers["simdist", "history"].shape == (2, 13)
+    assert primers["simdist", "previous_action"].shape == (3,)
+    assert new_agent(Config(model_size="tiny"), 10, 3).world_model.encoder.action_dim == 0
+
+
 def test_model_dynamics_hidden_and_latent_dim_resize_the_model_and_survive_save_and_load(tmp_path):
     from simdist.agents import SimDistAgent
     from simdist.recipes.simdist_quadruped import Config, new_agent
@@ -272,9 +283,10 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
 
 
 def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert):
+    # (with an encoder that reads previous actions: the option through every stage)
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
-                "--ensemble-shared-encoder", "--budgets-min", 0.02, "--output-dir", tmp_path,
-                "--threads", 1)
+                "--ensemble-shared-encoder", "--model-previous-action", "--budgets-min", 0.02,
+                "--output-dir", tmp_path, "--threads", 1)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
     pretrain = json.loads((stages / "pretrain.json").read_text())["result"]

@@ -60,6 +60,8 @@ def describe_simdist_model(model: SimDistWorldModel) -> dict:
             "simnorm_groups": enc.simnorm_groups}
     if enc.ignored_inputs:  # files written before the option stay readable without it
         desc["ignored_inputs"] = list(enc.ignored_inputs)
+    if enc.action_dim:  # likewise; code that predates it refuses the file (shape mismatch)
+        desc["previous_action"] = True
     dynamics_hidden = int(_linears(model.dynamics.net)[0].out_features)
     if dynamics_hidden != desc["hidden"]:  # likewise: written only when it differs
         desc["dynamics_hidden"] = dynamics_hidden
@@ -73,7 +75,8 @@ def build_simdist_model(desc: dict) -> SimDistWorldModel:
         desc["obs_dim"], desc["action_dim"], size="small", latent_dim=desc["latent_dim"],
         hidden=desc["hidden"], history=desc["history"], simnorm_groups=desc["simnorm_groups"],
         ignored_inputs=desc.get("ignored_inputs", ()),
-        dynamics_hidden=desc.get("dynamics_hidden"))
+        dynamics_hidden=desc.get("dynamics_hidden"),
+        previous_action=bool(desc.get("previous_action", False)))
 
 
 def _describe_encoder(encoder: nn.Module) -> dict:

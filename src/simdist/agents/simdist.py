@@ -77,6 +77,8 @@ class SimDistConfig:
 
 # the actions a latency-compensating policy has sent that the robot may not apply yet
 PENDING = ("simdist", "pending_actions")
+# the action sent at the previous step (for an encoder that reads it beside each observation)
+PREVIOUS_ACTION = ("simdist", "previous_action")
 
 
 class SimDistPolicy(TensorDictModuleBase):
@@ -103,6 +105,9 @@ class SimDistPolicy(TensorDictModuleBase):
         if self.latency_compensation:
             self.in_keys.append(PENDING)
             self.out_keys.append(("next", *PENDING))
+        if world_model.encoder.action_dim:
+            self.in_keys.append(PREVIOUS_ACTION)
+            self.out_keys.append(("next", *PREVIOUS_ACTION))
 
     def _in_flight(self, td, latent, is_init, device) -> tuple[torch.Tensor, torch.Tensor]:
         """The latent rolled through the actions still in flight, and those actions."""
@@ -128,12 +133,22 @@ class SimDistPolicy(TensorDictModuleBase):
         if is_init is None:
             raise KeyError("SimDistPolicy needs 'is_init': add torchrl.envs.InitTracker()")
         is_init = is_init.to(device).reshape(*batch, 1, 1).bool()
+        previous = None
+        if enc.action_dim:
+            previous = td.get(PREVIOUS_ACTION, None)
+            if previous is None:
+                raise KeyError(f"this model's encoder reads the previous action: the env needs "
+                               f"{PREVIOUS_ACTION} (build it with SimDistAgent.make_primer())")
+            # an episode's first observation comes with no previous action, as in training
+            previous = torch.where(is_init[..., 0], torch.zeros_like(previous.to(device)),
+                                   previous.to(device))
+        step = enc.step_input(obs, previous)
         history = td.get(("simdist", "history"), None)
         if history is None:
-            history = obs.unsqueeze(-2).expand(*batch, enc.history, enc.obs_dim)
+            history = step.unsqueeze(-2).expand(*batch, enc.history, enc.input_dim)
         history = history.to(device)
-        shifted = torch.cat([history[..., 1:, :], obs.unsqueeze(-2)], -2)
-        history = torch.where(is_init, obs.unsqueeze(-2).expand_as(shifted), shifted)
+        shifted = torch.cat([history[..., 1:, :], step.unsqueeze(-2)], -2)
+        history = torch.where(is_init, step.unsqueeze(-2).expand_as(shifted), shifted)
         latent = self.world_model.encode(history).reshape(-1, self.world_model.latent_dim)
         start = latent
         if self.latency_compensation:
@@ -144,6 +159,8 @@ class SimDistPolicy(TensorDictModuleBase):
             sent = torch.cat([pending[:, 1:], plan["action"][:, None]], 1)
             td.set(("next", *PENDING), sent.reshape(*batch, *sent.shape[1:]).to(home))
         td.set("action", plan["action"].reshape(*batch, -1).to(home))
+        if enc.action_dim:
+            td.set(("next", *PREVIOUS_ACTION), td.get("action").clone())
         td.set(("next", "simdist", "history"), history.to(home))
         td.set(("planner", "latent"), latent.reshape(*batch, -1).to(home))
         for key in ("mean", "rewards", "value"):
@@ -374,12 +391,15 @@ class SimDistAgent(ckpt_format.LoadableAgent):
 
     def make_primer(self, latency_compensation: int | None = None) -> TensorDictPrimer:
         """The env transform that carries the policy's state between steps: the
-        observation history and, with ``latency_compensation=k`` (default: the planner
-        config's), the last ``k`` actions sent."""
+        observation history, the action sent at the previous step when the encoder reads
+        it, and, with ``latency_compensation=k`` (default: the planner config's), the
+        last ``k`` actions sent."""
         enc = self.world_model.encoder
         if latency_compensation is None:
             latency_compensation = (self.planner_config or PlannerConfig()).latency_compensation
-        specs = {"history": Unbounded((enc.history, enc.obs_dim))}
+        specs = {"history": Unbounded((enc.history, enc.input_dim))}
+        if enc.action_dim:
+            specs[PREVIOUS_ACTION[-1]] = Unbounded((enc.action_dim,))
         if latency_compensation:
             specs[PENDING[-1]] = Unbounded((latency_compensation, self.world_model.action_dim))
         return TensorDictPrimer(Composite({"simdist": Composite(specs)}), default_value=0.0,

@@ -182,20 +182,32 @@ class HistoryEncoder(nn.Module):
     ``ignored_inputs`` lists observation dimensions the encoder does not read (e.g. sensors
     a world model should not depend on); the windows keep their full width.
 
+    With ``action_dim`` > 0 every step of the window also carries the action sent one step
+    before it (``[o_t, a_{t-1}]``, zeros at an episode's first step): a robot knows what
+    it commanded, and with actuation latency the commands still in flight decide what
+    happens next, which the observations alone cannot tell. A window then reads
+    ``history + 1`` steps of a sequence (:attr:`context`).
+
     Examples:
         >>> enc = HistoryEncoder(obs_dim=4, history=3, latent_dim=16, hidden=32)
         >>> obs = torch.randn(2, 10, 4)
         >>> is_init = torch.zeros(2, 10, dtype=torch.bool); is_init[:, 0] = True
         >>> enc.encode_sequence(obs, is_init).shape
         torch.Size([2, 10, 16])
+        >>> with_actions = HistoryEncoder(obs_dim=4, history=3, latent_dim=16, hidden=32,
+        ...                               action_dim=2)
+        >>> with_actions.encode_sequence(obs, is_init, torch.zeros(2, 10, 2)).shape
+        torch.Size([2, 10, 16])
     """
 
     def __init__(self, obs_dim: int, history: int = 4, latent_dim: int = 64, hidden: int = 256,
                  layers: int = 2, simnorm_groups: int | None = 8,
-                 ignored_inputs: Sequence[int] = ()):
+                 ignored_inputs: Sequence[int] = (), action_dim: int = 0):
         super().__init__()
         if history < 1:
             raise ValueError(f"history must be >= 1, got {history}")
+        if action_dim < 0:
+            raise ValueError(f"action_dim must be >= 0, got {action_dim}")
         ignored = sorted({int(i) for i in ignored_inputs})
         if ignored and not (0 <= ignored[0] and ignored[-1] < obs_dim):
             raise ValueError(f"ignored_inputs must be indices in [0, {obs_dim}), got {ignored}")
@@ -206,8 +218,13 @@ class HistoryEncoder(nn.Module):
             raise ValueError(f"latent_dim={latent_dim} not divisible by "
                              f"simnorm_groups={simnorm_groups}")
         self.obs_dim, self.history, self.latent_dim = obs_dim, history, latent_dim
+        self.action_dim = int(action_dim)
+        # one step of the window: the observation, then the previous action (if read)
+        self.input_dim = obs_dim + self.action_dim
+        # steps of a sequence one window reads: the oldest entry's previous action too
+        self.context = history + (1 if self.action_dim else 0)
         self.simnorm_groups = simnorm_groups
-        self.net = mlp(obs_dim * history, latent_dim, hidden, layers)
+        self.net = mlp(self.input_dim * history, latent_dim, hidden, layers)
         # Fixed input statistics (buffers, never trained): observations mix angles,
         # velocities and contact forces whose scales differ by orders of magnitude.
         self.register_buffer("obs_mean", torch.zeros(obs_dim))
@@ -230,14 +247,49 @@ class HistoryEncoder(nn.Module):
         self.obs_std.copy_(std.clamp_min(eps))
 
     def forward(self, window: torch.Tensor) -> torch.Tensor:
-        """Encodes windows ``[..., history, obs_dim]`` (oldest first) into latents."""
-        check_last_dims("observation window", window, (self.history, self.obs_dim))
-        z = self.net(((window - self.obs_mean) / self.obs_std * self.input_mask).flatten(-2))
+        """Encodes windows ``[..., history, input_dim]`` (oldest first) into latents
+        (``input_dim``: the observation, then the previous action if it is read)."""
+        check_last_dims("observation window", window, (self.history, self.input_dim))
+        obs = (window[..., :self.obs_dim] - self.obs_mean) / self.obs_std * self.input_mask
+        # actions are already in [-1, 1]: read as they are
+        x = torch.cat([obs, window[..., self.obs_dim:]], -1) if self.action_dim else obs
+        z = self.net(x.flatten(-2))
         return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z
 
-    def windows(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
-        """``[B, T, D]`` sequences -> ``[B, T, history, D]`` windows clamped to episode starts."""
+    def step_input(self, obs: torch.Tensor, previous_action: torch.Tensor | None) -> torch.Tensor:
+        """One step of a window: ``obs [..., obs_dim]``, then ``previous_action
+        [..., action_dim]`` if this encoder reads it (``None`` only when it does not)."""
         check_last_dims("observation", obs, (self.obs_dim,))
+        if not self.action_dim:
+            return obs
+        if previous_action is None:
+            raise ValueError("this encoder reads the previous action beside each observation "
+                             "(action_dim > 0): pass it")
+        check_last_dims("previous action", previous_action, (self.action_dim,))
+        return torch.cat([obs, previous_action.to(obs.dtype)], -1)
+
+    @staticmethod
+    def previous_actions(actions: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
+        """``[B, T, A]`` actions -> the action sent one step before each step (zeros at an
+        episode's first step, and at a slice's first step, whose predecessor is not in it)."""
+        previous = torch.cat([torch.zeros_like(actions[:, :1]), actions[:, :-1]], 1)
+        return torch.where(is_init[..., None].bool(), torch.zeros_like(previous), previous)
+
+    def windows(self, obs: torch.Tensor, is_init: torch.Tensor,
+                actions: torch.Tensor | None = None) -> torch.Tensor:
+        """``[B, T, D]`` sequences -> ``[B, T, history, input_dim]`` windows clamped to
+        episode starts. ``actions [B, T, A]`` (the action taken at each step) are needed
+        when the encoder reads previous actions and ignored otherwise."""
+        check_last_dims("observation", obs, (self.obs_dim,))
+        if self.action_dim:
+            if actions is None:
+                raise ValueError("this encoder reads the previous action beside each "
+                                 "observation (action_dim > 0): pass the slices' actions")
+            if actions.shape != (*obs.shape[:2], self.action_dim):
+                raise ValueError(f"actions must have shape {(*obs.shape[:2], self.action_dim)} "
+                                 f"to go with observations {tuple(obs.shape)}, got "
+                                 f"{tuple(actions.shape)}")
+            obs = self.step_input(obs, self.previous_actions(actions, is_init))
         B, T = obs.shape[:2]
         steps = torch.arange(T, device=obs.device)
         first = is_init.clone()
@@ -247,12 +299,16 @@ class HistoryEncoder(nn.Module):
         index = (steps[None, :, None] - offsets).clamp_min(0)  # [1, T, k]
         index = torch.maximum(index, episode_start[:, :, None])  # [B, T, k]
         return torch.gather(obs[:, :, None].expand(B, T, self.history, -1), 1,
-                            index[..., None].expand(B, T, self.history, self.obs_dim))
+                            index[..., None].expand(B, T, self.history, self.input_dim))
 
-    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
-        """Latents for every step of ``[B, T, D]`` sequences."""
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor,
+                        actions: torch.Tensor | None = None) -> torch.Tensor:
+        """Latents for every step of ``[B, T, D]`` sequences (``actions``: see
+        :meth:`windows`)."""
         check_finite("observation", obs)
-        return self(self.windows(obs, is_init))
+        if self.action_dim and actions is not None:
+            check_finite("action", actions)
+        return self(self.windows(obs, is_init, actions))
 
 
 def simnorm(z: torch.Tensor, groups: int) -> torch.Tensor:

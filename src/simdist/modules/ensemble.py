@@ -54,13 +54,19 @@ class _Encoders(nn.Module):
         self.parts = nn.ModuleList(encoders)
         first = encoders[0]
         self.history, self.obs_dim = first.history, first.obs_dim
+        self.action_dim, self.input_dim = first.action_dim, first.input_dim
+        self.context = first.context
         self.latent_dim = sum(e.latent_dim for e in encoders)
 
     def forward(self, window: torch.Tensor) -> torch.Tensor:
         return torch.cat([enc(window) for enc in self.parts], -1)
 
-    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
-        return torch.cat([enc.encode_sequence(obs, is_init) for enc in self.parts], -1)
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor,
+                        actions: torch.Tensor | None = None) -> torch.Tensor:
+        return torch.cat([enc.encode_sequence(obs, is_init, actions) for enc in self.parts], -1)
+
+    def step_input(self, obs: torch.Tensor, previous_action: torch.Tensor | None) -> torch.Tensor:
+        return self.parts[0].step_input(obs, previous_action)
 
 
 class WorldModelEnsemble(LatentModelVerbs, nn.Module):
@@ -109,12 +115,14 @@ class WorldModelEnsemble(LatentModelVerbs, nn.Module):
         first = members[0]
 
         def sizes(m):
-            return (m.encoder.obs_dim, m.encoder.history, m.latent_dim, m.action_dim)
+            return (m.encoder.obs_dim, m.encoder.history, m.latent_dim, m.action_dim,
+                    m.encoder.action_dim)
 
         for i, m in enumerate(members[1:], 1):
             if sizes(m) != sizes(first):
                 raise ValueError(
-                    f"ensemble member {i} has (obs_dim, history, latent_dim, action_dim) "
+                    f"ensemble member {i} has (obs_dim, history, latent_dim, action_dim, "
+                    f"previous-action inputs) "
                     f"{sizes(m)}, member 0 has {sizes(first)}: members must share them")
         L = first.latent_dim
         self.members = nn.ModuleList(members)

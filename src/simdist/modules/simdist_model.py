@@ -56,8 +56,11 @@ class LatentModelVerbs:
     def encode(self, window: torch.Tensor) -> torch.Tensor:
         return self.encoder(window)
 
-    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
-        return self.encoder.encode_sequence(obs, is_init)
+    def encode_sequence(self, obs: torch.Tensor, is_init: torch.Tensor,
+                        actions: torch.Tensor | None = None) -> torch.Tensor:
+        """Latents of ``[B, T, D]`` sequences; ``actions [B, T, A]`` are read (as each
+        step's previous action) only by an encoder built with ``previous_action=True``."""
+        return self.encoder.encode_sequence(obs, is_init, actions)
 
     def next(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         return self.dynamics(latent, action)
@@ -115,9 +118,11 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
         """Builds a model from the size table (``tiny``, ``small``, ``wide``, ``paper``).
 
         ``overrides`` replace the size's entries (``latent_dim``, ``hidden``, ``history``,
-        ``simnorm_groups``) or add ``ignored_inputs`` (encoder inputs zeroed) and
+        ``simnorm_groups``) or add ``ignored_inputs`` (encoder inputs zeroed),
         ``dynamics_hidden`` (the dynamics MLP's width; default ``hidden``: the one part
-        SimDist finetunes may be given more capacity than the frozen ones).
+        SimDist finetunes may be given more capacity than the frozen ones) and
+        ``previous_action`` (``True``: the encoder reads the action sent one step before
+        each observation of its window, see :class:`~simdist.modules.HistoryEncoder`).
         """
         if size not in SIMDIST_SIZES:
             raise ValueError(f"unknown model size {size!r}; valid: {', '.join(SIMDIST_SIZES)}")
@@ -126,7 +131,8 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
         dynamics_hidden = s.get("dynamics_hidden") or hidden
         return cls(
             HistoryEncoder(obs_dim, s["history"], latent, hidden, simnorm_groups=groups,
-                           ignored_inputs=s.get("ignored_inputs", ())),
+                           ignored_inputs=s.get("ignored_inputs", ()),
+                           action_dim=action_dim if s.get("previous_action") else 0),
             dynamics or MLPDynamics(latent, action_dim, dynamics_hidden, simnorm_groups=groups),
             ScalarHead(latent + action_dim, hidden, activation=nn.SiLU),
             ScalarHead(latent, hidden, activation=nn.SiLU),

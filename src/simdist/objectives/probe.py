@@ -17,7 +17,9 @@ class ProbeLoss(SimdistLoss):
     """Trains ``probe(sg(z_t)) ~ target_t``; the world model never sees this loss.
 
     ``encode`` maps ``(observation [B,T,D], is_init [B,T])`` to latents (e.g.
-    ``SimDistWorldModel.encode_sequence``) and runs under ``torch.no_grad``. Targets can be
+    ``SimDistWorldModel.encode_sequence``) and runs under ``torch.no_grad``; where the
+    input has an ``action`` entry it is passed too (an encoder that reads previous actions
+    needs it; ``encode`` then takes ``(observation, is_init, action)``). Targets can be
     any vector key (e.g. privileged ``"state"`` to show torso/feet positions) or uint8
     pixels.
 
@@ -36,6 +38,7 @@ class ProbeLoss(SimdistLoss):
         observation: NestedKey = "observation"
         target: NestedKey = "state"
         is_init: NestedKey = "is_init"
+        action: NestedKey = "action"
 
     default_keys = _AcceptedKeys
 
@@ -48,9 +51,11 @@ class ProbeLoss(SimdistLoss):
 
     def forward(self, td: TensorDictBase) -> TensorDict:
         B, T = sequence_batch(td)
+        inputs = [self.read(td, "observation"), self.read_flag(td, "is_init", (B, T))]
+        if self.tensor_keys.action in td.keys(True):
+            inputs.append(self.read(td, "action"))
         with torch.no_grad():
-            latents = self.encode(self.read(td, "observation"),
-                                  self.read_flag(td, "is_init", (B, T)))
+            latents = self.encode(*inputs)
         target = self.read(td, "target")
         target = pixels_to_target(target) if target.dtype == torch.uint8 else target
         error = (self.probe(latents) - target).pow(2)

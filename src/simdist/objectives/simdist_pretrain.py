@@ -38,7 +38,7 @@ def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: to
     targets = latents.unfold(1, horizon, 1)[:, 1:S + 1].transpose(-1, -2)   # [B, S, H, L]
     crosses = is_init.unfold(1, horizon, 1)[:, 1:S + 1]                     # [B, S, H]
     mask = torch.cumprod((~crosses).to(latents.dtype), -1)
-    complete = complete_windows(is_init, model.encoder.history).to(latents.dtype)
+    complete = complete_windows(is_init, model.encoder.context).to(latents.dtype)
     target_ok = complete.unfold(1, horizon, 1)[:, 1:S + 1]
     return predicted, targets, mask * complete[:, :S, None] * target_ok
 
@@ -46,7 +46,9 @@ def rollout_windows(model: SimDistWorldModel, latents: torch.Tensor, actions: to
 def complete_windows(is_init: torch.Tensor, history: int) -> torch.Tensor:
     """``[B, T]``: whether step ``t``'s encoder window is what the robot would see.
 
-    A window is complete when it fits inside the slice (``t >= history - 1``) or an
+    ``history`` is the number of steps a window reads (the encoder's ``context``: its
+    history, plus one when it reads each step's previous action). A window is complete
+    when it fits inside the slice (``t >= history - 1``) or an
     episode starts at or before ``t`` inside the slice (then its clamped window is exactly
     the deployment one). Otherwise the slice cut off real history, and training on it
     would teach the encoder windows it never sees when deployed.
@@ -135,12 +137,12 @@ class SimDistPretrainLoss(SimdistLoss):
         H, wm = self.horizon, self.world_model
         is_init = self.read_flag(td, "is_init", (B, T))
         action = self.read(td, "action")
-        latents = wm.encode_sequence(self.read(td, "observation"), is_init)
+        latents = wm.encode_sequence(self.read(td, "observation"), is_init, action)
         S = T - H
         act = action.unfold(1, H, 1)[:, :S].transpose(-1, -2)
         reward_t = self.read_scalar(td, "reward", (B, T)).unfold(1, H, 1)[:, :S].transpose(-1, -2)
         value_t = self.read_scalar(td, "value_target", (B, T)).unfold(1, H + 1, 1)[:, :S].transpose(-1, -2)
-        start_ok = complete_windows(is_init, wm.encoder.history)[:, :S, None].to(latents.dtype)
+        start_ok = complete_windows(is_init, wm.encoder.context)[:, :S, None].to(latents.dtype)
         members = [None, *self.extra_dynamics]  # None: the model's own dynamics
         rolled = [rollout_windows(wm, latents, action, is_init, H, d) for d in members]
         predicted = torch.cat([r[0] for r in rolled])                          # [K*B, S, H, L]
@@ -157,7 +159,7 @@ class SimDistPretrainLoss(SimdistLoss):
                              .pow(2).squeeze(-1), path_mask[..., :-1])
         value = masked_mean((wm.value(path) - tile(value_t)).pow(2).squeeze(-1), path_mask)
         expert = self.read_flag(td, "expert_active", (B, T)).to(latents.dtype)
-        expert = expert * complete_windows(is_init, wm.encoder.history).to(latents.dtype)
+        expert = expert * complete_windows(is_init, wm.encoder.context).to(latents.dtype)
         bc = masked_mean((wm.policy(latents) - action).pow(2).mean(-1), expert)
         w = self.weights
         return self.finish(TensorDict({
@@ -249,7 +251,7 @@ class DynamicsFinetuneLoss(SimdistLoss):
         is_init = self.read_flag(td, "is_init", (B, T))
         action = self.read(td, "action")
         with torch.set_grad_enabled(whole_model):  # frozen: the encoder builds no graph
-            latents = wm.encode_sequence(self.read(td, "observation"), is_init)
+            latents = wm.encode_sequence(self.read(td, "observation"), is_init, action)
         predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
         error = (predicted - targets.detach()).pow(2).sum(-1)                   # [B, S, H]
         with torch.no_grad():
@@ -319,7 +321,7 @@ def latent_prediction_error(world_model: SimDistWorldModel, td: TensorDictBase,
     """
     B, T = sequence_batch(td)
     is_init = td.get("is_init").reshape(B, T).bool()
-    latents = world_model.encode_sequence(td.get("observation"), is_init)
+    latents = world_model.encode_sequence(td.get("observation"), is_init, td.get("action"))
     predicted, targets, mask = rollout_windows(world_model, latents, td.get("action"), is_init,
                                                horizon)
     error = (predicted - targets).pow(2).sum(-1)                     # [B, S, H]
@@ -355,7 +357,7 @@ def latent_prediction_skill(world_model: SimDistWorldModel, td: TensorDictBase, 
     """
     B, T = sequence_batch(td)
     is_init = td.get("is_init").reshape(B, T).bool()
-    latents = world_model.encode_sequence(td.get("observation"), is_init)
+    latents = world_model.encode_sequence(td.get("observation"), is_init, td.get("action"))
     actions = td.get("action")
     predicted, targets, mask = rollout_windows(world_model, latents, actions, is_init, horizon)
     S = predicted.shape[1]

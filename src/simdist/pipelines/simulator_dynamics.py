@@ -146,6 +146,11 @@ class SimulatorPlanningPolicy(nn.Module):
         super().__init__()
         model = agent.world_model
         enc = model.encoder
+        if enc.action_dim:
+            raise NotImplementedError(
+                "the simulator-as-dynamics planner rebuilds observation histories from "
+                "simulator states, which carry no previous actions: it does not support "
+                "models whose encoder reads them (previous_action=True)")
         self.model, self.enc = model, enc
         self.dynamics = SimulatorDynamics(worlds, enc.history, enc.obs_dim)
 

@@ -130,6 +130,11 @@ class Config:
     # applies whatever --model-size says (0 keeps that size's own). A folder from before
     # the field was made with the size's own latent.
     model_latent_dim: int = field(default=128, metadata={ABSENT_MEANS: 0})
+    # the encoder also reads the action sent one step before each observation of its window
+    # (HistoryEncoder(action_dim=)): with actuation latency (0-1 steps in the training
+    # randomisation, 3 in `laggy`) the commands still in flight decide the next states,
+    # and only a latent that carries them lets dynamics-only finetuning learn a new delay.
+    model_previous_action: bool = False
     # precision of the world model's training updates: "none" (float32) or "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
     # Planning has its own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
@@ -428,6 +433,8 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int 
                          simnorm_groups=cfg.model_latent_dim // SIMNORM_GROUP)
     if cfg.model_ignored_observations:
         overrides["ignored_inputs"] = ignored_inputs(cfg)
+    if cfg.model_previous_action:
+        overrides["previous_action"] = True
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
