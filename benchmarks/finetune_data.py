@@ -24,6 +24,9 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
     # the same 2000 updates with slices drawn by the model's own error (prioritised replay)
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 2000 --priority-alpha 0.6 --json ft_prio.json
+    # the same with the consistency loss over 10 predicted steps instead of the run's 5
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \
+        RUN/stages/round_2/data --updates 2000 --horizon 10 --json ft_h10.json
     # the same without what follows a rollover (25 steps of it kept)
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 2000 --keep-after-rollover 25 --json ft_cut.json
@@ -98,6 +101,12 @@ def finetune(args) -> None:
                 print(f"{tag}: relative latent prediction error on {path}: "
                       + " ".join(f"{e:.3f}" for e in error), flush=True)
 
+    if args.horizon is not None:
+        if not 1 <= args.horizon < cfg.slice_len:
+            raise SystemExit(f"--horizon must lie in [1, slice_len={cfg.slice_len}), "
+                             f"got {args.horizon}")
+        for loss in agent.finetune_losses:  # the finetuning loss only; pretraining is done
+            loss.horizon = args.horizon
     report("before")
     data = torch.cat([load_memmap(Path(p))[:, :].select(*recipe.TARGET_KEYS)
                       for p in args.train], 0)
@@ -218,6 +227,8 @@ def main(argv=None):
     f.add_argument("--keep-after-rollover", type=int, default=None, metavar="STEPS",
                    help="end each training episode this many steps after the quadruped first "
                         "rolls onto its back (default: keep whole episodes)")
+    f.add_argument("--horizon", type=int, default=None,
+                   help="predicted steps of the finetuning loss (default: the run's model_horizon)")
     f.add_argument("--priority-alpha", type=float, default=0.0,
                    help="draw slices by the model's own consistency error to this power "
                         "(data/prioritised_slices.py; default 0: uniform, the recipe's)")
