@@ -63,7 +63,9 @@ class NoisyPolicy(torch.nn.Module):
         td = self.policy(td)
         action = td["action"] + self.std * torch.randn(td["action"].shape,
                                                        generator=self.generator)
-        return td.set("action", torch.maximum(torch.minimum(action, self.high), self.low))
+        # (through the policy, so an encoder reading previous actions sees the noisy one)
+        return self.policy.replace_action(
+            td, torch.maximum(torch.minimum(action, self.high), self.low))
 
 
 def collect(args) -> None:

@@ -64,8 +64,8 @@ class PriorPolicy(torch.nn.Module):
         latent = td.get(("planner", "latent"))
         action = self.inner.world_model.policy(latent)
         low, high = self.inner.planner.action_low, self.inner.planner.action_high
-        td.set("action", torch.maximum(torch.minimum(action, high), low))
-        return td
+        # what was sent, also as the next step's previous action / newest action in flight
+        return self.inner.replace_action(td, torch.maximum(torch.minimum(action, high), low))
 
 
 def main(argv=None):

@@ -43,7 +43,8 @@ class SimDistPlanStep(nn.Module):
     returns ``(action [B, A], history [B, K, D], mean [B, H, A])``; feed ``history`` and
     ``mean`` back in at the next step. (For an encoder that reads the previous action,
     ``D`` is the observation and action width, and the previous action is the first of
-    ``previous_mean``: the action the last step returned.) ``policy_noise`` is left out when the planner has
+    ``previous_mean``: the action the last step returned, so deploy the returned action as
+    it is; a controller that changes it must build the history entry itself.) ``policy_noise`` is left out when the planner has
     no policy proposals. :meth:`draw_noise` draws the noise exactly as the planner does.
 
     Args:

@@ -280,15 +280,22 @@ def test_losses_and_the_probe_read_previous_actions_where_the_encoder_does():
     wm = SimDistWorldModel.build(obs_dim=4, action_dim=2, size="tiny", previous_action=True)
     td = linear_system_batch(batch=4, time=8, obs_dim=4)
     pretrain, finetune = SimDistPretrainLoss(wm, horizon=2), DynamicsFinetuneLoss(wm, horizon=2)
-    probe = ProbeLoss(wm.encode_sequence, StateDecoder(wm.latent_dim, 4, hidden=8))
+    probe = ProbeLoss(wm.encode_sequence, StateDecoder(wm.latent_dim, 4, hidden=8),
+                      with_actions=True)
     for loss in (pretrain, finetune, probe):
         assert all(torch.isfinite(v).all() for v in loss(td).values())
-    # the latents (hence every term) depend on the recorded actions
-    other = td.clone()
-    other["action"] = other["action"].flip(1)
-    assert pretrain(other)["loss_consistency"] != pretrain(td)["loss_consistency"]
+    # the latents depend on the previous actions, not only the dynamics' inputs
+    is_init = td["is_init"][..., 0]
+    shifted = td["action"].roll(1, 1)
+    z = wm.encode_sequence(td["observation"], is_init, td["action"])
+    assert not torch.allclose(z, wm.encode_sequence(td["observation"], is_init, shifted))
     with pytest.raises(Exception, match="action"):
         probe(td.exclude("action"))
+    # a probe on a two-argument encoder is not handed the actions
+    plain = SimDistWorldModel.build(obs_dim=4, action_dim=2, size="tiny")
+    probe_plain = ProbeLoss(lambda obs, is_init: plain.encode_sequence(obs, is_init),
+                            StateDecoder(plain.latent_dim, 4, hidden=8))
+    assert torch.isfinite(probe_plain(td)["loss_probe"])
 
 
 def test_a_dynamics_ensemble_averages_each_members_terms():

@@ -237,6 +237,8 @@ def test_planner_flags_reach_the_planner_config():
     (["--model-history", "-1"], "model_history: must be >= 0"),
     (["--model-dynamics-hidden", "-8"], "model_dynamics_hidden: must be >= 0"),
     (["--model-latent-dim", "100"], "model_latent_dim: must be a multiple of 8"),
+    (["--model-history", "11", "--model-previous-action"],
+     "slice_len: needs slice_len >= model_horizon + 12"),
     (["--threads", "-1"], "threads: must be >= 0"),
     (["--finetune-priority-alpha", "inf"], "finetune_priority_alpha: must be >= 0 and finite"),
     (["--finetune-priority-beta", "-0.5"], "finetune_priority_beta: must be >= 0"),

@@ -121,6 +121,34 @@ class SimDistPolicy(TensorDictModuleBase):
         pending = torch.where(is_init.reshape(-1, 1, 1), torch.zeros_like(pending), pending)
         return self.world_model.rollout(latent, pending)[..., -1, :], pending
 
+    @staticmethod
+    def replace_action(td: TensorDictBase, action: torch.Tensor) -> TensorDictBase:
+        """Sets ``td["action"]`` to ``action`` *and* the state this policy carries to the
+        next step about the action sent (the previous action an encoder reads, the newest
+        action in flight): what a wrapper that changes the planned action (exploration
+        noise, another controller) must call, so the next step encodes what was sent.
+
+        Examples:
+            >>> agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny",
+            ...                                              previous_action=True))
+            >>> planner = PlannerConfig(horizon=2, num_samples=8, num_elites=2, iterations=1)
+            >>> policy = agent.policy(config=planner)
+            >>> td = policy(TensorDict({"observation": torch.zeros(1, 10),
+            ...                         "is_init": torch.ones(1, 1, dtype=torch.bool),
+            ...                         "simdist": {"previous_action": torch.zeros(1, 3)}}, [1]))
+            >>> td = SimDistPolicy.replace_action(td, torch.ones(1, 3))
+            >>> td["next", "simdist", "previous_action"].tolist()
+            [[1.0, 1.0, 1.0]]
+        """
+        td.set("action", action)
+        if ("next", *PREVIOUS_ACTION) in td.keys(True):
+            td.set(("next", *PREVIOUS_ACTION), action.clone())
+        if ("next", *PENDING) in td.keys(True):
+            sent = td.get(("next", *PENDING)).clone()
+            sent[..., -1, :] = action
+            td.set(("next", *PENDING), sent)
+        return td
+
     @torch.no_grad()
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         enc = self.world_model.encoder

@@ -251,7 +251,7 @@ class HistoryEncoder(nn.Module):
         (``input_dim``: the observation, then the previous action if it is read)."""
         check_last_dims("observation window", window, (self.history, self.input_dim))
         obs = (window[..., :self.obs_dim] - self.obs_mean) / self.obs_std * self.input_mask
-        # actions are already in [-1, 1]: read as they are
+        # actions lie within the action bounds (about [-1, 1]): read as they are
         x = torch.cat([obs, window[..., self.obs_dim:]], -1) if self.action_dim else obs
         z = self.net(x.flatten(-2))
         return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z

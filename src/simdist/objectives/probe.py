@@ -17,9 +17,9 @@ class ProbeLoss(SimdistLoss):
     """Trains ``probe(sg(z_t)) ~ target_t``; the world model never sees this loss.
 
     ``encode`` maps ``(observation [B,T,D], is_init [B,T])`` to latents (e.g.
-    ``SimDistWorldModel.encode_sequence``) and runs under ``torch.no_grad``; where the
-    input has an ``action`` entry it is passed too (an encoder that reads previous actions
-    needs it; ``encode`` then takes ``(observation, is_init, action)``). Targets can be
+    ``SimDistWorldModel.encode_sequence``) and runs under ``torch.no_grad``; with
+    ``with_actions=True`` it also gets the ``action`` entry (``(observation, is_init,
+    action)``: what an encoder that reads previous actions needs). Targets can be
     any vector key (e.g. privileged ``"state"`` to show torso/feet positions) or uint8
     pixels.
 
@@ -42,9 +42,10 @@ class ProbeLoss(SimdistLoss):
 
     default_keys = _AcceptedKeys
 
-    def __init__(self, encode, probe: nn.Module, check_inputs: bool = True):
+    def __init__(self, encode, probe: nn.Module, check_inputs: bool = True,
+                 with_actions: bool = False):
         super().__init__(check_inputs)
-        self.encode, self.probe = encode, probe
+        self.encode, self.probe, self.with_actions = encode, probe, with_actions
 
     def trainable_parameters(self):
         return list(self.probe.parameters())
@@ -52,7 +53,7 @@ class ProbeLoss(SimdistLoss):
     def forward(self, td: TensorDictBase) -> TensorDict:
         B, T = sequence_batch(td)
         inputs = [self.read(td, "observation"), self.read_flag(td, "is_init", (B, T))]
-        if self.tensor_keys.action in td.keys(True):
+        if self.with_actions:
             inputs.append(self.read(td, "action"))
         with torch.no_grad():
             latents = self.encode(*inputs)

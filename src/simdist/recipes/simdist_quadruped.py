@@ -276,6 +276,15 @@ class Config:
         check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
               f"needs model_horizon < slice_len <= episode_steps, got {self.model_horizon}, "
               f"{self.slice_len}, {self.episode_steps}")
+        # a training start t counts only once its encoder window lies inside the slice
+        # (complete_windows), so a slice must leave one start at t >= context - 1
+        history = self.model_history or SIMDIST_SIZES[self.model_size]["history"]
+        context = history + (1 if self.model_previous_action else 0)
+        check(self.slice_len - self.model_horizon >= context, "slice_len",
+              f"needs slice_len >= model_horizon + {context} (the steps one encoder window "
+              f"reads: history {history}"
+              f"{' + the previous action' if self.model_previous_action else ''}), got "
+              f"{self.slice_len}: no start of a slice would see a whole window")
         check(len(self.budgets_min) > 0 and all(b > 0 for b in self.budgets_min)
               and all(a < b for a, b in zip(self.budgets_min, self.budgets_min[1:])),
               "budgets_min", f"must be positive and increasing, got {self.budgets_min}")
@@ -688,7 +697,8 @@ def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path,
     state_dim = buffer[:]["state"].shape[-1]
     probe = StateDecoder(agent.world_model.latent_dim, state_dim, hidden=256,
                          layers=2).to(cfg.device)
-    loss = ProbeLoss(agent.world_model.encode_sequence, probe)
+    loss = ProbeLoss(agent.world_model.encode_sequence, probe,
+                     with_actions=bool(agent.world_model.encoder.action_dim))
     optim = torch.optim.Adam(loss.trainable_parameters(), lr=1e-3)
 
     def update(batch):
