@@ -21,15 +21,20 @@ def _agent(obs_dim=89, action_dim=12, lr=2e-4, mixed_precision="none"):
                         SimDistConfig(horizon=3, lr=lr, mixed_precision=mixed_precision))
 
 
-def test_planning_policy_runs_in_env_with_history_reset_per_episode():
-    agent = _agent()
+def _rollout(agent, iterations=2):
+    """8 steps of 2 quadrupeds whose episodes restart after 5 steps, planned by ``agent``."""
     env = TransformedEnv(make_env("quadruped-flat", seed=0, max_episode_steps=5, num_envs=2),
                          InitTracker())
     env.append_transform(agent.make_primer())
     spec = env.action_spec
     policy = agent.policy(spec.space.low[0], spec.space.high[0],
-                          PlannerConfig(horizon=3, num_samples=16, num_elites=4, iterations=2))
-    td = env.rollout(8, policy, break_when_any_done=False)
+                          PlannerConfig(horizon=3, num_samples=16, num_elites=4,
+                                        iterations=iterations))
+    return env.rollout(8, policy, break_when_any_done=False), spec, policy
+
+
+def test_planning_policy_runs_in_env_with_history_reset_per_episode():
+    td, spec, _ = _rollout(_agent())
     low, high = spec.space.low[0], spec.space.high[0]
     assert ((td["action"] >= low) & (td["action"] <= high)).all()
     history = td["next", "simdist", "history"]                 # [2, 8, k, obs]
@@ -201,13 +206,7 @@ def test_a_policy_whose_encoder_reads_previous_actions_encodes_what_training_enc
     torch.manual_seed(0)
     wm = SimDistWorldModel.build(89, 12, size="tiny", history=3, previous_action=True)
     agent = SimDistAgent(wm, SimDistConfig(horizon=3))
-    env = TransformedEnv(make_env("quadruped-flat", seed=0, max_episode_steps=5, num_envs=2),
-                         InitTracker())
-    env.append_transform(agent.make_primer())
-    spec = env.action_spec
-    policy = agent.policy(spec.space.low[0], spec.space.high[0],
-                          PlannerConfig(horizon=3, num_samples=16, num_elites=4, iterations=1))
-    td = env.rollout(8, policy, break_when_any_done=False)
+    td, _, policy = _rollout(agent, iterations=1)
     history = td["next", "simdist", "history"]             # [2, 8, 3, 89 + 12]
     assert history.shape[-1] == 101
     # newest entry: (o_t, a_{t-1}); zeros at an episode's first step (steps 0 and 5)
