@@ -25,7 +25,7 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 2000 --priority-alpha 0.6 --json ft_prio.json
     # the same with the consistency loss over 10 predicted steps instead of the run's 5
-    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 2000 --horizon 10 --json ft_h10.json
     # the same without what follows a rollover (25 steps of it kept)
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\

@@ -44,8 +44,8 @@ class SimDistPlanStep(nn.Module):
     ``mean`` back in at the next step. (For an encoder that reads the previous action,
     ``D`` is the observation and action width, and the previous action is the first of
     ``previous_mean``: the action the last step returned, so deploy the returned action as
-    it is; a controller that changes it must build the history entry itself.) ``policy_noise`` is left out when the planner has
-    no policy proposals. :meth:`draw_noise` draws the noise exactly as the planner does.
+    it is; a controller that changes it must build the history entry itself.)
+    ``policy_noise`` is left out when the planner has no policy proposals. :meth:`draw_noise` draws the noise exactly as the planner does.
 
     Args:
         policy: a :class:`~simdist.agents.SimDistPolicy` (``agent.policy(...)``).
@@ -72,14 +72,9 @@ class SimDistPlanStep(nn.Module):
                 policy_noise=None):
         init = is_init.reshape(-1, 1, 1).bool()
         enc = self.world_model.encoder
-        previous = None
-        if enc.action_dim:  # the action the last step returned; none at an episode start
-            previous = torch.where(init[:, 0], torch.zeros_like(previous_mean[:, 0]),
-                                   previous_mean[:, 0])
-        step = enc.step_input(observation, previous)
-        # a new episode's window repeats its first observation (SimDistPolicy's rule)
-        shifted = torch.cat([history[:, 1:], step[:, None]], 1)
-        history = torch.where(init, step[:, None].expand_as(shifted), shifted)
+        # the previous action is the one the last step returned (SimDistPolicy's rule)
+        previous = previous_mean[:, 0] if enc.action_dim else None
+        history = enc.push(history, observation, previous, is_init)
         latent = self.world_model.encode(history)
         mean = torch.zeros_like(previous_mean)
         if self.planner.config.warm_start:  # the previous plan shifted by one step

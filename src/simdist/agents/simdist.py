@@ -167,16 +167,10 @@ class SimDistPolicy(TensorDictModuleBase):
             if previous is None:
                 raise KeyError(f"this model's encoder reads the previous action: the env needs "
                                f"{PREVIOUS_ACTION} (build it with SimDistAgent.make_primer())")
-            # an episode's first observation comes with no previous action, as in training
-            previous = torch.where(is_init[..., 0], torch.zeros_like(previous.to(device)),
-                                   previous.to(device))
-        step = enc.step_input(obs, previous)
+            previous = previous.to(device)
         history = td.get(("simdist", "history"), None)
-        if history is None:
-            history = step.unsqueeze(-2).expand(*batch, enc.history, enc.input_dim)
-        history = history.to(device)
-        shifted = torch.cat([history[..., 1:, :], step.unsqueeze(-2)], -2)
-        history = torch.where(is_init, step.unsqueeze(-2).expand_as(shifted), shifted)
+        history = enc.push(None if history is None else history.to(device), obs, previous,
+                           is_init[..., 0])
         latent = self.world_model.encode(history).reshape(-1, self.world_model.latent_dim)
         start = latent
         if self.latency_compensation:

@@ -268,6 +268,21 @@ class HistoryEncoder(nn.Module):
         check_last_dims("previous action", previous_action, (self.action_dim,))
         return torch.cat([obs, previous_action.to(obs.dtype)], -1)
 
+    def push(self, history: torch.Tensor | None, obs: torch.Tensor,
+             previous_action: torch.Tensor | None, is_init: torch.Tensor) -> torch.Tensor:
+        """The deployment window after one step: ``history [..., history, input_dim]``
+        (``None`` before the first step) shifted by one with the new step appended; where
+        ``is_init [..., 1]`` is set, a new episode's window repeating its first step, whose
+        previous action is zero, exactly as :meth:`windows` builds training windows."""
+        start = is_init.reshape(*obs.shape[:-1], 1).bool()
+        if previous_action is not None:
+            previous_action = previous_action.masked_fill(start, 0.0)
+        step = self.step_input(obs, previous_action).unsqueeze(-2)
+        if history is None:
+            return step.expand(*obs.shape[:-1], self.history, self.input_dim)
+        shifted = torch.cat([history[..., 1:, :], step], -2)
+        return torch.where(start[..., None], step.expand_as(shifted), shifted)
+
     @staticmethod
     def previous_actions(actions: torch.Tensor, is_init: torch.Tensor) -> torch.Tensor:
         """``[B, T, A]`` actions -> the action sent one step before each step (zeros at an

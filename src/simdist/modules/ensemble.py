@@ -65,8 +65,8 @@ class _Encoders(nn.Module):
                         actions: torch.Tensor | None = None) -> torch.Tensor:
         return torch.cat([enc.encode_sequence(obs, is_init, actions) for enc in self.parts], -1)
 
-    def step_input(self, obs: torch.Tensor, previous_action: torch.Tensor | None) -> torch.Tensor:
-        return self.parts[0].step_input(obs, previous_action)
+    def push(self, history, obs, previous_action, is_init) -> torch.Tensor:
+        return self.parts[0].push(history, obs, previous_action, is_init)
 
 
 class WorldModelEnsemble(LatentModelVerbs, nn.Module):
