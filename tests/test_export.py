@@ -1,5 +1,7 @@
 """torch.export round trips: each exported step equals the TorchRL policy it comes from."""
 
+import dataclasses
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -58,6 +60,16 @@ def test_exported_simdist_step_takes_any_batch_size():
         inputs[1].normal_()
         for a, b in zip(program(*inputs), step(*inputs)):
             assert torch.equal(a, b)
+
+
+def test_exporting_a_latency_compensating_policy_is_refused():
+    # its step would plan from the latent now instead of after the actions in flight
+    agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny"))
+    policy = agent.policy(config=dataclasses.replace(PLANNER, latency_compensation=2))
+    with pytest.raises(ValueError, match="latency"):
+        SimDistPlanStep(policy)
+    with pytest.raises(ValueError, match="latency"):
+        export_simdist_policy(policy)
 
 
 def _recurrent_round_trip(policy, program, obs_key, observations, rssm):

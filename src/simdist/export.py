@@ -21,7 +21,9 @@ from, action for action, when fed the noise that policy draws (tested).
 Limits: the exported step leaves out the TorchRL policies' input checks (the planner's
 finite-latent check, key and shape messages) and the Dreamer policy's exploration noise
 (deployment acts deterministically from the actor); a planner made with ``compile=True``
-is exported from its eager loop.
+is exported from its eager loop. A SimDist policy that compensates actuation latency
+(``latency_compensation > 0``) is refused: its queue of actions in flight is not an input
+of the step.
 """
 
 from __future__ import annotations
@@ -63,6 +65,13 @@ class SimDistPlanStep(nn.Module):
 
     def __init__(self, policy):
         super().__init__()
+        if getattr(policy, "latency_compensation", 0):
+            # planning from the latent rolled through the actions in flight needs that queue
+            # as a step input; a step without it would plan from the wrong state, silently
+            raise ValueError(f"SimDistPlanStep: the policy compensates "
+                             f"{policy.latency_compensation} steps of latency, which the "
+                             "exported step does not carry; export a policy made with "
+                             "latency_compensation=0")
         self.world_model, self.planner = policy.world_model, policy.planner
         config = self.planner.config
         self.uses_policy = self.planner._policy is not None and config.num_policy > 0
