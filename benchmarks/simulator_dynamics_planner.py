@@ -131,13 +131,13 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
 
     agents = {k: recipe.load_agent(cfg, pretrained, None if v == "pretrained" else v)
               for k, v in weights.items()}
-    # every model scores from the driver's history windows, and the simulator rebuilds
-    # states from them: models that read previous actions fit neither
-    readers = sorted(k for k, a in agents.items() if a.world_model.encoder.action_dim)
-    if readers:
-        raise SystemExit(f"--ranking: {readers} read previous actions, which this ranking "
-                         "(windows of observations only) does not support")
     first = next(iter(agents.values()))
+    # every model scores from the driver's (the first model's) history windows
+    window = lambda a: (a.world_model.encoder.history, a.world_model.encoder.input_dim)  # noqa: E731
+    misfits = sorted(k for k, a in agents.items() if window(a) != window(first))
+    if misfits:
+        raise SystemExit(f"--ranking: {misfits} read other history windows (steps, width) "
+                         f"than the first model's {window(first)}")
     env = locomotion_env(get_target(domain), worlds, cfg.episode_steps,
                          cfg.seed + 20_000 if env_seed is None else env_seed, task=cfg.task,
                          primers=[first.make_primer(0)])

@@ -42,11 +42,44 @@ def test_refuses_what_it_cannot_copy():
         SimulatorDynamics(make_env("cartpole-balance", num_envs=1).sims, history=2, obs_dim=5)
 
 
-def test_simulator_planner_refuses_an_encoder_that_reads_previous_actions():
+def test_a_step_pairs_the_new_observation_with_the_action_just_applied():
+    # an encoder that reads the previous action: each history step is [o_t, a_{t-1}]
+    env = make_env("quadruped-flat", num_envs=2, target="slippery_slope", seed=4)
+    env.reset()
+    dynamics = SimulatorDynamics(env.sims, history=3, obs_dim=89, action_dim=12)
+    dynamics.sync()
+    history = torch.randn(2, 3, 89 + 12)
+    z = dynamics.latent(history)
+    assert z.shape == (2, dynamics.latent_dim) and dynamics.history_of(z).shape == (2, 3, 101)
+    actions = torch.rand(2, 12) * 2 - 1
+    predicted = dynamics.history_of(dynamics(z, actions.double()))
+    real = env.step(TensorDict({"action": actions}, [2]))["next", "observation"]
+    assert torch.equal(predicted[:, -1], torch.cat([real, actions], -1))
+    assert torch.equal(predicted[:, :-1], history[:, 1:])
+
+
+def test_simulator_planner_keeps_the_window_of_an_encoder_that_reads_previous_actions():
+    """The same windows SimDistPolicy builds: [o_t, a_{t-1}], zeros before the first step."""
+    from torchrl.envs import InitTracker, TransformedEnv
+
     from simdist.agents import SimDistAgent
     from simdist.modules import PlannerConfig, SimDistWorldModel
     from simdist.pipelines.simulator_dynamics import SimulatorPlanningPolicy
-    agent = SimDistAgent(SimDistWorldModel.build(10, 3, size="tiny", previous_action=True))
-    with pytest.raises(NotImplementedError, match="previous actions"):
-        SimulatorPlanningPolicy(agent, worlds=None, planner_config=PlannerConfig(),
-                                action_low=None, action_high=None, seed=0)
+    agent = SimDistAgent(SimDistWorldModel.build(89, 12, size="tiny", history=2,
+                                                 previous_action=True))
+    env = TransformedEnv(make_env("quadruped-flat", num_envs=2, seed=0), InitTracker())
+    env = env.append_transform(agent.make_primer(0))
+    policy = SimulatorPlanningPolicy(agent, env.base_env.sims, PlannerConfig(
+        horizon=2, num_samples=4, num_elites=2, iterations=1), -torch.ones(12),
+        torch.ones(12), seed=0)
+    td = env.rollout(3, policy)
+    windows, obs, actions = td["next", "simdist", "history"], td["observation"], td["action"]
+    assert windows.shape == (2, 3, 2, 89 + 12)
+    previous = torch.cat([torch.zeros_like(actions[:, :1]), actions[:, :-1]], 1)
+    assert torch.equal(windows[:, :, -1], torch.cat([obs, previous], -1))
+    assert torch.equal(windows[:, 0, 0], windows[:, 0, 1])  # the first step repeated
+    assert torch.equal(windows[:, 1:, 0], windows[:, :-1, 1])
+    # without the primer's previous action, a clear error
+    with pytest.raises(KeyError, match="previous action"):
+        policy(TensorDict({"observation": obs[:, 0], "is_init": torch.ones(2, 1, dtype=torch.bool)},
+                          [2]))

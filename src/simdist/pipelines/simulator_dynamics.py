@@ -17,6 +17,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
+from simdist.agents.simdist import PREVIOUS_ACTION
 from simdist.envs.simulation import Simulation
 from simdist.modules.planner import LatentMPPIPlanner
 
@@ -29,12 +30,16 @@ class SimulatorDynamics:
     Each evaluated world ``i`` has one scratch copy (same task, target and episode draws);
     a candidate row sets the copy to its state, steps one control step and reads the new
     state and observation back. Rows are stepped one after another (MuJoCo is serial).
+    With ``action_dim > 0`` each step of the history is ``[observation, previous action]``
+    (a :class:`~simdist.modules.HistoryEncoder` that reads the previous action): the new
+    step pairs the new observation with the action just applied.
 
     Args:
         worlds: the evaluation env's simulations (``SimDistEnv.sims``; read, never stepped
             here). Robot tasks only (they carry the observation the encoder reads).
         history: the encoder's history length.
         obs_dim: the encoder's observation size.
+        action_dim: the previous action's size in each history step (0: observations only).
 
     Examples:
         >>> from simdist.envs import make_env
@@ -46,7 +51,8 @@ class SimulatorDynamics:
         True
     """
 
-    def __init__(self, worlds: list[Simulation], history: int, obs_dim: int):
+    def __init__(self, worlds: list[Simulation], history: int, obs_dim: int,
+                 action_dim: int = 0):
         if not worlds or not all(w.spec.is_robot for w in worlds):
             raise ValueError("SimulatorDynamics needs the worlds of a robot task (e.g. "
                              "quadruped-flat): the encoder reads their 'observation'")
@@ -55,6 +61,7 @@ class SimulatorDynamics:
             raise ValueError(f"the worlds' observation has size {first.observation_layout.size}"
                              f", the encoder reads {obs_dim}")
         self.worlds, self.history, self.obs_dim = worlds, history, obs_dim
+        self.action_dim, self.step_width = action_dim, obs_dim + action_dim
         self.copies = [Simulation(w.spec, w.target, None, None, False, 8, None, 0,
                                   {"speeds": w.task.speeds}, w.max_episode_steps)
                        for w in worlds]
@@ -63,7 +70,7 @@ class SimulatorDynamics:
                     "forward_progress": np.zeros(1), "dynamics": np.zeros(
                         len(first.params.as_array())), "reward": np.zeros(1),
                     "terminated": np.zeros(1, bool), "truncated": np.zeros(1, bool)}
-        self.latent_dim = 1 + self.state_size + history * obs_dim
+        self.latent_dim = 1 + self.state_size + history * self.step_width
 
     def sync(self) -> None:
         """Copies each world's episode draws (dynamics, command) into its scratch copy."""
@@ -80,7 +87,8 @@ class SimulatorDynamics:
                 copy.physics.model.geom_quat[floor] = world.physics.model.geom_quat[floor]
 
     def latent(self, history: torch.Tensor) -> torch.Tensor:
-        """``[B, latent_dim]`` from the worlds' current states and histories ``[B, T, O]``."""
+        """``[B, latent_dim]`` from the worlds' current states and histories ``[B, T, W]``
+        (``W``: observation, then previous action if ``action_dim``)."""
         rows = []
         for i, world in enumerate(self.worlds):
             state = np.empty(self.state_size)
@@ -90,8 +98,8 @@ class SimulatorDynamics:
         return torch.cat([head, history.reshape(len(rows), -1).double()], 1)
 
     def history_of(self, z: torch.Tensor) -> torch.Tensor:
-        """The observation histories ``[N, T, O]`` (float32) inside latents ``z``."""
-        return z[:, 1 + self.state_size:].float().reshape(-1, self.history, self.obs_dim)
+        """The histories ``[N, T, W]`` (float32) inside latents ``z``."""
+        return z[:, 1 + self.state_size:].float().reshape(-1, self.history, self.step_width)
 
     def __call__(self, z: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         out = z.clone()
@@ -107,7 +115,10 @@ class SimulatorDynamics:
             copy.step(action, self.row)
             mujoco.mj_getState(m, d, out[r, 1:1 + self.state_size].numpy(), _STATE)
             obs[r] = self.row["observation"]
-        history = torch.cat([self.history_of(z)[:, 1:], torch.as_tensor(obs).float()[:, None]], 1)
+        step = torch.as_tensor(obs).float()
+        if self.action_dim:  # the new observation's previous action: the one just applied
+            step = torch.cat([step, a.float()], -1)
+        history = torch.cat([self.history_of(z)[:, 1:], step[:, None]], 1)
         out[:, 1 + self.state_size:] = history.reshape(len(z), -1).double()
         return out
 
@@ -115,8 +126,9 @@ class SimulatorDynamics:
 class SimulatorPlanningPolicy(nn.Module):
     """A SimDist agent's planner and heads with :class:`SimulatorDynamics` as the model.
 
-    Keeps the observation history exactly as :class:`~simdist.agents.SimDistPolicy` does
-    (``("simdist", "history")``, from ``agent.make_primer(0)``); the reward, terminal value
+    Keeps the history window exactly as :class:`~simdist.agents.SimDistPolicy` does
+    (``("simdist", "history")``, and ``("simdist", "previous_action")`` for an encoder that
+    reads it, from ``agent.make_primer(0)``); the reward, terminal value
     and prior proposals are the agent's heads on the encoded history of each candidate.
 
     Args:
@@ -146,13 +158,8 @@ class SimulatorPlanningPolicy(nn.Module):
         super().__init__()
         model = agent.world_model
         enc = model.encoder
-        if enc.action_dim:
-            raise NotImplementedError(
-                "the simulator-as-dynamics planner rebuilds observation histories from "
-                "simulator states, which carry no previous actions: it does not support "
-                "models whose encoder reads them (previous_action=True)")
         self.model, self.enc = model, enc
-        self.dynamics = SimulatorDynamics(worlds, enc.history, enc.obs_dim)
+        self.dynamics = SimulatorDynamics(worlds, enc.history, enc.obs_dim, enc.action_dim)
 
         def encoded(z):
             return model.encode(self.dynamics.history_of(z)).reshape(len(z), -1)
@@ -171,17 +178,21 @@ class SimulatorPlanningPolicy(nn.Module):
     @torch.no_grad()
     def forward(self, td):
         obs, enc = td["observation"], self.enc
-        is_init = td["is_init"].reshape(-1, 1, 1).bool()
-        history = td.get(("simdist", "history"), None)
-        if history is None:
-            history = obs.unsqueeze(-2).expand(*obs.shape[:-1], enc.history, enc.obs_dim)
-        shifted = torch.cat([history[..., 1:, :], obs.unsqueeze(-2)], -2)
-        history = torch.where(is_init, obs.unsqueeze(-2).expand_as(shifted), shifted)
+        is_init = td["is_init"].reshape(-1, 1).bool()
+        previous = None
+        if enc.action_dim:
+            previous = td.get(PREVIOUS_ACTION, None)
+            if previous is None:
+                raise KeyError(f"this model's encoder reads the previous action: the env needs "
+                               f"{PREVIOUS_ACTION} (build it with SimDistAgent.make_primer())")
+        history = enc.push(td.get(("simdist", "history"), None), obs, previous, is_init)
         if is_init.any():  # new episodes: new draws (commands, dynamics) to copy
             self.dynamics.sync()
         plan = self.planner(TensorDict({"latent": self.dynamics.latent(history),
                                         "is_init": is_init.reshape(-1, 1)}, [obs.shape[0]]))
         td.set("action", plan["action"].float())
+        if enc.action_dim:
+            td.set(("next", *PREVIOUS_ACTION), td.get("action").clone())
         td.set(("next", "simdist", "history"), history)
         td.set(("planner", "rewards"), plan["planner", "rewards"].float())
         return td
