@@ -136,7 +136,8 @@ def test_model_history_sets_the_encoders_window():
     from simdist.recipes.simdist_quadruped import Config, new_agent
     agent = new_agent(Config(model_size="tiny", model_history=6), obs_dim=10, action_dim=3)
     assert agent.world_model.encoder.history == 6
-    assert agent.make_primer(0).primers["simdist", "history"].shape == (6, 10)
+    # each step: the observation and (the default) the previous action
+    assert agent.make_primer(0).primers["simdist", "history"].shape == (6, 10 + 3)
     default = new_agent(Config(model_size="tiny"), obs_dim=10, action_dim=3)
     assert default.world_model.encoder.history == 2  # the size's own
 
@@ -149,7 +150,9 @@ def test_model_previous_action_makes_the_encoder_and_the_primer_carry_the_last_a
     primers = agent.make_primer(0).primers
     assert primers["simdist", "history"].shape == (2, 13)
     assert primers["simdist", "previous_action"].shape == (3,)
-    assert new_agent(Config(model_size="tiny"), 10, 3).world_model.encoder.action_dim == 0
+    off = Config(model_size="tiny", model_previous_action=False)
+    assert new_agent(off, 10, 3).world_model.encoder.action_dim == 0
+    assert Config().model_previous_action  # the default reads it
 
 
 def test_model_dynamics_hidden_and_latent_dim_resize_the_model_and_survive_save_and_load(tmp_path):
@@ -254,9 +257,11 @@ def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, mes
 
 
 def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, tiny_expert):
-    # with prioritised finetuning slices: each member ranks the slices by its own error
+    # with prioritised finetuning slices: each member ranks the slices by its own error;
+    # and an encoder of observations alone (the default reads the previous action too)
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
                 "--budgets-min", 0.02, "--finetune-priority-alpha", 0.6,
+                "--no-model-previous-action",
                 "--output-dir", tmp_path, "--threads", 1)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
@@ -285,9 +290,9 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
 
 
 def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert):
-    # (with an encoder that reads previous actions: the option through every stage)
+    # (with the default encoder, which reads previous actions, through every stage)
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
-                "--ensemble-shared-encoder", "--model-previous-action", "--budgets-min", 0.02,
+                "--ensemble-shared-encoder", "--budgets-min", 0.02,
                 "--output-dir", tmp_path, "--threads", 1)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"

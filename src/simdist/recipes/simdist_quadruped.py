@@ -134,7 +134,10 @@ class Config:
     # (HistoryEncoder(action_dim=)): with actuation latency (0-1 steps in the training
     # randomisation, 3 in `laggy`) the commands still in flight decide the next states,
     # and only a latent that carries them lets dynamics-only finetuning learn a new delay.
-    model_previous_action: bool = False
+    # slippery_slope after 8 minutes, three seeds paired on the same worlds: see
+    # benchmarks/README.md, "The previous action as an encoder input". A folder from before
+    # the field was made without it.
+    model_previous_action: bool = field(default=True, metadata={ABSENT_MEANS: False})
     # precision of the world model's training updates: "none" (float32) or "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
     # Planning has its own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
@@ -335,7 +338,9 @@ PRESETS = {
               "model_latent_dim": 0,  # the reference's 64
               "mixed_precision": "none",  # the GPU path as measured (float32)
               "planner_precision": "none",
-              "model_horizon": 25, "pretrain_updates": 100_000, "slice_len": 50,
+              # 51: the reference's 25-step history and 25-step horizon, plus the step
+              # whose action the window's first step reads as its previous action
+              "model_horizon": 25, "pretrain_updates": 100_000, "slice_len": 51,
               "batch_slices": 16, "planner_horizon": 25, "planner_samples": 450,
               "planner_iterations": 8, "planner_elites": 64, "planner_policy_fraction": 0.05,
               "planner_policy_noise": 0.05,
