@@ -81,6 +81,18 @@ PENDING = ("simdist", "pending_actions")
 PREVIOUS_ACTION = ("simdist", "previous_action")
 
 
+def previous_action_of(td: TensorDictBase, encoder) -> torch.Tensor | None:
+    """The previous action ``td`` carries for an encoder that reads it (``None`` for one
+    that does not); a clear error when the env was built without its primer."""
+    if not encoder.action_dim:
+        return None
+    previous = td.get(PREVIOUS_ACTION, None)
+    if previous is None:
+        raise KeyError(f"this model's encoder reads the previous action: the env needs "
+                       f"{PREVIOUS_ACTION} (build it with SimDistAgent.make_primer())")
+    return previous
+
+
 class SimDistPolicy(TensorDictModuleBase):
     """Observation history -> latent -> latent MPPI plan -> action.
 
@@ -161,13 +173,8 @@ class SimDistPolicy(TensorDictModuleBase):
         if is_init is None:
             raise KeyError("SimDistPolicy needs 'is_init': add torchrl.envs.InitTracker()")
         is_init = is_init.to(device).reshape(*batch, 1, 1).bool()
-        previous = None
-        if enc.action_dim:
-            previous = td.get(PREVIOUS_ACTION, None)
-            if previous is None:
-                raise KeyError(f"this model's encoder reads the previous action: the env needs "
-                               f"{PREVIOUS_ACTION} (build it with SimDistAgent.make_primer())")
-            previous = previous.to(device)
+        previous = previous_action_of(td, enc)
+        previous = None if previous is None else previous.to(device)
         history = td.get(("simdist", "history"), None)
         history = enc.push(None if history is None else history.to(device), obs, previous,
                            is_init[..., 0])

@@ -17,7 +17,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from simdist.agents.simdist import PREVIOUS_ACTION
+from simdist.agents.simdist import PREVIOUS_ACTION, previous_action_of
 from simdist.envs.simulation import Simulation
 from simdist.modules.planner import LatentMPPIPlanner
 
@@ -179,13 +179,8 @@ class SimulatorPlanningPolicy(nn.Module):
     def forward(self, td):
         obs, enc = td["observation"], self.enc
         is_init = td["is_init"].reshape(-1, 1).bool()
-        previous = None
-        if enc.action_dim:
-            previous = td.get(PREVIOUS_ACTION, None)
-            if previous is None:
-                raise KeyError(f"this model's encoder reads the previous action: the env needs "
-                               f"{PREVIOUS_ACTION} (build it with SimDistAgent.make_primer())")
-        history = enc.push(td.get(("simdist", "history"), None), obs, previous, is_init)
+        history = enc.push(td.get(("simdist", "history"), None), obs,
+                           previous_action_of(td, enc), is_init)
         if is_init.any():  # new episodes: new draws (commands, dynamics) to copy
             self.dynamics.sync()
         plan = self.planner(TensorDict({"latent": self.dynamics.latent(history),
