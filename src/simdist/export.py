@@ -47,7 +47,8 @@ class SimDistPlanStep(nn.Module):
     ``D`` is the observation and action width, and the previous action is the first of
     ``previous_mean``: the action the last step returned, so deploy the returned action as
     it is; a controller that changes it must build the history entry itself.)
-    ``policy_noise`` is left out when the planner has no policy proposals. :meth:`draw_noise` draws the noise exactly as the planner does.
+    ``policy_noise`` is left out when the planner has no policy proposals.
+    :meth:`draw_noise` draws the noise exactly as the planner does.
 
     Args:
         policy: a :class:`~simdist.agents.SimDistPolicy` (``agent.policy(...)``).

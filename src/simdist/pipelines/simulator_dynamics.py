@@ -184,7 +184,7 @@ class SimulatorPlanningPolicy(nn.Module):
         if is_init.any():  # new episodes: new draws (commands, dynamics) to copy
             self.dynamics.sync()
         plan = self.planner(TensorDict({"latent": self.dynamics.latent(history),
-                                        "is_init": is_init.reshape(-1, 1)}, [obs.shape[0]]))
+                                        "is_init": is_init}, [obs.shape[0]]))
         td.set("action", plan["action"].float())
         if enc.action_dim:
             td.set(("next", *PREVIOUS_ACTION), td.get("action").clone())
