@@ -93,3 +93,16 @@ def test_the_table_by_commanded_speed_splits_each_point_by_its_episodes_speeds()
     old = {"minutes": [0.0], "m": [{"fraction": [0.1], "progress_m": [0.1], "return": 1.0}]}
     assert format_by_command(old, "ice") is None
     assert "command_mps" not in aggregate_seeds([runs[0], old])["m"][0]
+
+
+def test_the_tracking_table_counts_overshooting_as_error_not_as_progress():
+    from simdist.pipelines.report import format_table, format_tracking_error
+    point = lambda f: {"fraction": f, "progress_m": f, "mean_m": 1.0, "std_m": 0.0,
+                       "mean_fraction": sum(f) / len(f), "return": 1.0}
+    # "fast" walks 150% of every command: a higher mean fraction, a worse tracking
+    results = {"minutes": [8.0], "exact": [point([1.0, 0.96, 1.04, 1.0])],
+               "fast": [point([1.5, 1.5, 1.5, 1.5])]}
+    assert "150%" in format_table(results, "ice")
+    exact, fast = format_tracking_error(results, "ice").splitlines()[2:]
+    assert exact.startswith("exact") and "  2% [" in exact and exact.endswith(" 0%")
+    assert fast.startswith("fast") and " 50% [  50,   50]" in fast and fast.endswith(" 100%")

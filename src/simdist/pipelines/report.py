@@ -109,11 +109,42 @@ def format_by_command(results: dict, target: str) -> str | None:
     return "\n".join(lines)
 
 
+def format_tracking_error(results: dict, target: str) -> str:
+    """How far each method's episodes end from the commanded distance, in either direction.
+
+    The main table's mean fraction rewards overshooting: an episode that walks 150% of the
+    commanded distance counts more than one that walks 100%, although it follows the
+    command worse. This table reports the tracking error ``|1 - fraction|`` per episode
+    (mean [bootstrap 95% CI over episodes]; lower is better) and the share of episodes
+    that overshoot by more than 10%.
+
+    Examples:
+        >>> p = {"fraction": [0.9, 1.1, 1.5, 0.5]}
+        >>> print(format_tracking_error({"minutes": [0.0], "m": [p]}, "ice"))  # doctest: +NORMALIZE_WHITESPACE
+        Command tracking in ice: |1 - fraction of the commanded distance| per episode (mean
+        [bootstrap 95% CI over episodes], lower is better) and episodes beyond 110%
+        method    target data   tracking error   beyond 110%
+        m            0.00 min  30% [  10,   50]           25%
+    """
+    lines = [f"Command tracking in {target}: |1 - fraction of the commanded distance| per "
+             "episode (mean [bootstrap 95% CI over episodes], lower is better) and episodes "
+             "beyond 110%",
+             f"{'method':33s} {'target data':>12s} {'tracking error':>16s} {'beyond 110%':>13s}"]
+    for name, minutes, r in _rows(results):
+        when = f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
+        fraction = np.asarray(r["fraction"], dtype=np.float64)
+        s = summarise(np.abs(1.0 - fraction))
+        lines.append(f"{name:33s} {when} {100 * s['mean']:3.0f}% [{100 * s['ci_low']:4.0f}, "
+                     f"{100 * s['ci_high']:4.0f}] {100 * np.mean(fraction > 1.1):12.0f}%")
+    return "\n".join(lines)
+
+
 def print_table(results: dict, target: str) -> None:
     print("\n" + format_table(results, target))
     by_command = format_by_command(results, target)
     if by_command is not None:
         print("\n" + by_command)
+    print("\n" + format_tracking_error(results, target))
 
 
 def plot_results(results: dict, target: str, path: str | Path) -> None:
