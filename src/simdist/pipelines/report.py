@@ -28,6 +28,11 @@ def _rows(results: dict) -> list[tuple[str, float | None, dict]]:
     return rows
 
 
+def _budget_cell(minutes: float | None) -> str:
+    """The 12-character "target data" cell of a row ("-" for the sim reference)."""
+    return f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
+
+
 def _pooled_over_seeds(results: dict) -> bool:
     """Whether the points carry the interval that resamples seeds (several seeds pooled)."""
     return any("ci_fraction_seeds" in r for _, _, r in _rows(results))
@@ -56,7 +61,7 @@ def format_table(results: dict, target: str) -> str:
         lines[0] += "; the last column also resamples the seeds"
         lines[1] += f" {'CI over seeds':>15s}"
     for name, minutes, r in rows:
-        when = f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
+        when = _budget_cell(minutes)
         iqm = r.get("iqm_fraction", r["mean_fraction"])
         low, high = r.get("ci_fraction", [r["mean_fraction"]] * 2)
         line = (f"{name:33s} {when} {r['mean_m']:13.2f} {100 * r['mean_fraction']:5.0f}% "
@@ -93,7 +98,7 @@ def format_by_command(results: dict, target: str) -> str | None:
              f"{'method':33s} {'target data':>12s}"
              + "".join(f" {f'{s:g} m/s':>24s}" for s in speeds)]
     for name, minutes, r in rows:
-        when = f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
+        when = _budget_cell(minutes)
         fraction = np.asarray(r["fraction"], dtype=np.float64)
         command = np.round(np.asarray(r["command_mps"], dtype=np.float64), 6)
         cells = []
@@ -131,7 +136,7 @@ def format_tracking_error(results: dict, target: str) -> str:
              "beyond 110%",
              f"{'method':33s} {'target data':>12s} {'tracking error':>16s} {'beyond 110%':>13s}"]
     for name, minutes, r in _rows(results):
-        when = f"{minutes:8.2f} min" if minutes is not None else f"{'-':>12s}"
+        when = _budget_cell(minutes)
         fraction = np.asarray(r["fraction"], dtype=np.float64)
         s = summarise(np.abs(1.0 - fraction))
         lines.append(f"{name:33s} {when} {100 * s['mean']:3.0f}% [{100 * s['ci_low']:4.0f}, "
