@@ -106,3 +106,32 @@ def test_the_tracking_table_counts_overshooting_as_error_not_as_progress():
     exact, fast = format_tracking_error(results, "ice").splitlines()[2:]
     assert exact.startswith("exact") and "  2% [" in exact and exact.endswith(" 0%")
     assert fast.startswith("fast") and " 50% [  50,   50]" in fast and fast.endswith(" 100%")
+
+
+def test_paired_differences_are_per_episode_stratified_by_seed_and_refuse_other_worlds():
+    from simdist.pipelines.report import aggregate_seeds, format_paired_differences
+    from simdist.pipelines.statistics import summarise_groups
+    point = lambda f, c: {"fraction": f, "progress_m": f, "command_mps": c, "return": 1.0}
+    speeds = [0.25, 0.5, 0.75, 0.25]
+    # the worlds vary a lot (-0.5 .. 0.9) and "mine" is 0.1 above "other" on each of them
+    worlds = [[-0.5, 0.1, 0.9, 0.3], [0.2, -0.4, 0.6, 0.0]]
+    runs = [{"minutes": [0.0, 8.0],
+             "mine": [point(w, speeds), point([x + 0.1 + 0.01 * i for i, x in enumerate(w)], speeds)],
+             "other": [point(w, speeds), point(w, speeds)]} for w in worlds]
+    merged = aggregate_seeds(runs)
+    assert merged["mine"][1]["seed_episodes"] == [4, 4]
+    lines = format_paired_differences(merged, "ice", "mine").splitlines()
+    assert "stratified by seed" in lines[0]
+    own, other = lines[2], lines[3]
+    # against its own first point and against "other": +10, +11, +12, +13 points per seed
+    expected = summarise_groups([[10.0, 11.0, 12.0, 13.0]] * 2)
+    cell = f"{expected['mean']:+4.0f} [{expected['ci_low']:+5.0f}, {expected['ci_high']:+5.0f}]"
+    assert own.endswith(cell) and other.endswith(cell) and other.startswith("other")
+    # paired, the interval is a few points wide; the methods' own intervals are not
+    assert expected["ci_high"] - expected["ci_low"] < 5
+    ci = merged["mine"][1]["ci_fraction"]
+    assert 100 * (ci[1] - ci[0]) > 20
+    # points of different worlds (another speed drawn) cannot be paired: no table
+    runs[0]["other"][1] = point(worlds[0], [0.75, 0.5, 0.75, 0.25])
+    assert format_paired_differences(aggregate_seeds(runs), "ice", "mine") is None
+    assert format_paired_differences(merged, "ice", "absent") is None

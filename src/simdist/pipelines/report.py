@@ -144,12 +144,85 @@ def format_tracking_error(results: dict, target: str) -> str:
     return "\n".join(lines)
 
 
-def print_table(results: dict, target: str) -> None:
+def _seed_groups(point: dict) -> list[np.ndarray]:
+    """A point's per-episode fractions split by seed (one group for a single run)."""
+    fraction = np.asarray(point["fraction"], dtype=np.float64)
+    sizes = point.get("seed_episodes")
+    if not sizes or sum(sizes) != fraction.size:
+        return [fraction]
+    return np.split(fraction, np.cumsum(sizes)[:-1])
+
+
+def _same_worlds(a: dict, b: dict) -> bool:
+    """Whether two points hold one episode each of the same worlds, in the same order."""
+    if len(a["fraction"]) != len(b["fraction"]):
+        return False
+    if "command_mps" in a and "command_mps" in b:  # the drawn speeds must agree too
+        return np.allclose(a["command_mps"], b["command_mps"])
+    return True
+
+
+def format_paired_differences(results: dict, target: str, reference: str) -> str | None:
+    """``reference`` minus each method, paired by episode, in points of the commanded distance.
+
+    Every method is evaluated on the same worlds (same initial states and commanded
+    speeds), so the difference of two methods is best measured episode by episode: the
+    world-to-world spread that widens each method's own interval cancels. One row per
+    comparison: the reference at each budget minus its own first point (what the target
+    data added) and minus every other method at the same budget; mean [bootstrap 95% CI]
+    of the per-episode differences, stratified by seed when several seeds were pooled.
+    A difference whose interval excludes 0 is one the data support. ``None`` when some
+    pair of points does not hold the same worlds (their episode counts or speeds differ)
+    or ``reference`` is not a method of ``results``.
+
+    Examples:
+        >>> p = lambda f: {"fraction": f}
+        >>> r = {"minutes": [0.0, 8.0], "mine": [p([0.2, 0.4]), p([0.5, 0.9])],
+        ...      "other": [p([0.2, 0.4]), p([0.3, 0.5])]}
+        >>> print(format_paired_differences(r, "ice", "mine"))  # doctest: +NORMALIZE_WHITESPACE
+        Paired by episode in ice: mine minus each method, points of the commanded distance
+        (mean [bootstrap 95% CI of the per-episode differences])
+        minus (at the same budget)            0.00 min          8.00 min
+        its own 0.00 min point                   -      +40 [ +30,  +50]
+        other                          +0 [  +0,   +0]  +30 [ +20,  +40]
+    """
+    if reference not in results or reference not in _methods(results):
+        return None
+    ref, minutes = results[reference], results["minutes"]
+    comparisons = [(f"its own {minutes[0]:.2f} min point", [ref[0]] * len(ref))]
+    comparisons += [(name, results[name]) for name in _methods(results) if name != reference]
+    if not all(_same_worlds(a, b) for _, others in comparisons for a, b in zip(ref, others)):
+        return None
+    stratified = len(_seed_groups(ref[0])) > 1
+    lines = [f"Paired by episode in {target}: {reference} minus each method, points of the "
+             "commanded distance (mean [bootstrap 95% CI of the per-episode differences"
+             + (", stratified by seed" if stratified else "") + "])",
+             f"{'minus (at the same budget)':33s}"
+             + "".join(f" {_budget_cell(m):>17s}" for m in minutes)]
+    for row, (label, others) in enumerate(comparisons):
+        cells = []
+        for i, (mine, other) in enumerate(zip(ref, others)):
+            if row == 0 and i == 0:  # the first point against itself: nothing to compare
+                cells.append(f" {'-':>17s}")
+                continue
+            groups = [100 * (a - b) for a, b in zip(_seed_groups(mine), _seed_groups(other))]
+            s = summarise_groups(groups)
+            cells.append(f" {s['mean']:+4.0f} [{s['ci_low']:+5.0f}, {s['ci_high']:+5.0f}]")
+        lines.append(f"{label:33s}" + "".join(cells))
+    return "\n".join(lines)
+
+
+def print_table(results: dict, target: str, reference: str | None = None) -> None:
+    """Prints the results table, its split by commanded speed, the tracking table and,
+    given ``reference`` (a method's name), that method's paired differences."""
     print("\n" + format_table(results, target))
     by_command = format_by_command(results, target)
     if by_command is not None:
         print("\n" + by_command)
     print("\n" + format_tracking_error(results, target))
+    paired = format_paired_differences(results, target, reference) if reference else None
+    if paired is not None:
+        print("\n" + paired)
 
 
 def plot_results(results: dict, target: str, path: str | Path) -> None:
@@ -195,6 +268,8 @@ def _aggregate_point(points: list[dict]) -> dict:
             **commands, "mean_m": float(metres.mean()), "std_m": float(metres.std()),
             "mean_fraction": s["mean"], "std_fraction": s["std"], "iqm_fraction": s["iqm"],
             "ci_fraction": [s["ci_low"], s["ci_high"]], "seed_means": s["group_means"],
+            # episodes per seed, so paired differences can be stratified by seed later
+            "seed_episodes": [len(f) for f in fractions],
             **({"ci_fraction_seeds": [s["ci_seeds_low"], s["ci_seeds_high"]]}
                if "ci_seeds_low" in s else {}),
             "std_over_seeds": s["std_over_seeds"],

@@ -63,6 +63,7 @@ from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
 STEPS_PER_MINUTE = 50 * 60  # 50 Hz control
+SIMDIST = "SimDist: finetune dynamics"  # the method the paired table compares against
 SIMNORM_GROUP = 8  # latent dimensions per SimNorm group when --model-latent-dim resizes it
 TARGET_KEYS = ["observation", "action", "is_init", ("next", "observation"),
                ("next", "reward"), ("next", "done"), ("next", "terminated")]
@@ -820,7 +821,7 @@ def run(cfg: Config) -> dict:
                        lambda d: recording_stage(cfg, pretrained, probe, rounds[-1], out))
     results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds)
     runner.close()
-    print_table(results, get_target(cfg.target).name)
+    print_table(results, get_target(cfg.target).name, reference=SIMDIST)
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     summary = {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
                "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
@@ -845,7 +846,7 @@ def run_seeds(cfg: Config) -> dict:
     curves = aggregate_seeds([r["curves"] for r in per_seed])
     print(f"\n{len(cfg.seeds)} seeds {cfg.seeds} (statistics over all their episodes; "
           "'seeds' gives each seed's mean)")
-    print_table(curves, get_target(cfg.target).name)
+    print_table(curves, get_target(cfg.target).name, reference=SIMDIST)
     summary = {"config": dataclasses.asdict(cfg), "seeds": cfg.seeds, "curves": curves,
                "per_seed": {str(s): str(out / f"seed_{s}" / "results.json") for s in cfg.seeds}}
     write_json_atomic(out / "results.json", summary)
@@ -873,7 +874,7 @@ def collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds) -> dict:
         "minutes": minutes,
         "planner_in_sim": planner_zero_shot["sim"],
         "expert (zero-shot)": [expert] * len(minutes),
-        "SimDist: finetune dynamics": [zero] + [r["simdist_eval"] for r in rounds],
+        SIMDIST: [zero] + [r["simdist_eval"] for r in rounds],
         "ablation: finetune whole model": [zero] + [r["whole_eval"] for r in rounds],
         "baseline: continue expert SAC": [expert] + [r["sac_eval"] for r in rounds],
     }
