@@ -30,11 +30,15 @@ evaluation seeds and saves the weights (``--save``) for ``simulator_dynamics_pla
     # the same without what follows a rollover (25 steps of it kept)
     python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
         RUN/stages/round_2/data --updates 2000 --keep-after-rollover 25 --json ft_cut.json
+    # the same, also planning with exponential moving averages of the dynamics' weights
+    python benchmarks/finetune_data.py finetune --run RUN --train RUN/stages/round_1/data \\
+        RUN/stages/round_2/data --updates 2000 --ema-decay 0.99 0.999 --json ft_ema.json
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
 from pathlib import Path
@@ -136,24 +140,40 @@ def finetune(args) -> None:
         raise SystemExit(f"--eval-at must lie in [0, --updates={args.updates}], got {eval_at}")
     evaluations = {}
 
-    def evaluate(done):
+    def evaluate(done, label=None):
         stats, _ = recipe.evaluate_planner(cfg, agent, cfg.target)
         low, high = stats["ci_fraction"]
-        print(f"after {done} updates, planner in {cfg.target}: {100 * stats['mean_fraction']:.0f}% "
+        label = label or str(done)
+        print(f"after {label} updates, planner in {cfg.target}: {100 * stats['mean_fraction']:.0f}% "
               f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) of the "
               "commanded distance", flush=True)
-        evaluations[done] = {"mean_fraction": stats["mean_fraction"],
+        evaluations[label] = {"mean_fraction": stats["mean_fraction"],
                              "fraction": [float(f) for f in stats["fraction"]]}
+
+    # Exponential moving averages of the finetuned weights (Polyak averaging): each one
+    # plans beside the raw weights at every evaluation, on the same worlds.
+    if not all(0.0 < d < 1.0 for d in args.ema_decay):
+        raise SystemExit(f"--ema-decay values must lie in (0, 1), got {args.ema_decay}")
+    params = [p for loss in agent.finetune_losses for p in loss.trainable_parameters()]
+    averages = {decay: [p.detach().clone() for p in params] for decay in args.ema_decay}
+
+    def evaluate_all(done):
+        evaluate(done)
+        for decay, average in averages.items():
+            with swapped_in(params, average):
+                evaluate(done, f"{done} (weights averaged at decay {decay})")
 
     start = time.perf_counter()
     for i in range(args.updates):
         if i in eval_at:
-            evaluate(i)
+            evaluate_all(i)
         metrics = step(sample())
+        for decay, average in averages.items():
+            torch._foreach_lerp_(average, [p.detach() for p in params], 1.0 - decay)
         if i % 1000 == 0 or i == args.updates - 1:
             print(f"update {i}: consistency {metrics['loss_consistency']:.4f}", flush=True)
     if args.updates in eval_at:
-        evaluate(args.updates)
+        evaluate_all(args.updates)
     print(f"{args.updates} updates on {data.numel()} steps and {len(eval_at)} evaluations in "
           f"{time.perf_counter() - start:.0f} s")
     report("after")
@@ -164,6 +184,21 @@ def finetune(args) -> None:
     if args.json:
         Path(args.json).write_text(json.dumps({"lr": cfg.finetune_lr, "train": args.train,
                                                "evaluations": evaluations}, indent=1))
+
+
+@contextlib.contextmanager
+def swapped_in(params: list[torch.Tensor], values: list[torch.Tensor]):
+    """``params`` hold ``values`` inside the block and their own values again after it."""
+    saved = [p.detach().clone() for p in params]
+    with torch.no_grad():
+        for p, v in zip(params, values):
+            p.copy_(v)
+    try:
+        yield
+    finally:
+        with torch.no_grad():
+            for p, v in zip(params, saved):
+                p.copy_(v)
 
 
 def describe_priorities(slices: PrioritisedSlices, data, cfg, when: str) -> None:
@@ -236,6 +271,9 @@ def main(argv=None):
                         "(data/prioritised_slices.py; default 0: uniform, the recipe's)")
     f.add_argument("--priority-beta", type=float, default=None,
                    help="importance-weight exponent of the prioritised draws (default 0.4)")
+    f.add_argument("--ema-decay", type=float, nargs="*", default=[],
+                   help="also plan with an exponential moving average of the finetuned "
+                        "weights at each of these decays, on the same worlds")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     (collect if args.step == "collect" else finetune)(args)
