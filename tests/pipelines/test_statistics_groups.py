@@ -135,3 +135,12 @@ def test_paired_differences_are_per_episode_stratified_by_seed_and_refuse_other_
     runs[0]["other"][1] = point(worlds[0], [0.75, 0.5, 0.75, 0.25])
     assert format_paired_differences(aggregate_seeds(runs), "ice", "mine") is None
     assert format_paired_differences(merged, "ice", "absent") is None
+
+
+def test_paired_differences_pool_points_split_by_seed_differently():
+    from simdist.pipelines.report import format_paired_differences
+    grouped = {"fraction": [0.5, 0.6, 0.7, 0.8], "seed_episodes": [2, 2]}
+    single = {"fraction": [0.1, 0.2, 0.3, 0.4]}  # a record written without episode counts
+    table = format_paired_differences({"minutes": [8.0], "mine": [grouped], "old": [single]},
+                                      "ice", "mine")
+    assert table.splitlines()[3].startswith("old") and "+40 [  +40,   +40]" in table

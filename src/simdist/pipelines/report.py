@@ -186,7 +186,7 @@ def format_paired_differences(results: dict, target: str, reference: str) -> str
         its own 0.00 min point                   -      +40 [ +30,  +50]
         other                          +0 [  +0,   +0]  +30 [ +20,  +40]
     """
-    if reference not in results or reference not in _methods(results):
+    if reference not in _methods(results):
         return None
     ref, minutes = results[reference], results["minutes"]
     comparisons = [(f"its own {minutes[0]:.2f} min point", [ref[0]] * len(ref))]
@@ -205,7 +205,12 @@ def format_paired_differences(results: dict, target: str, reference: str) -> str
             if row == 0 and i == 0:  # the first point against itself: nothing to compare
                 cells.append(f" {'-':>17s}")
                 continue
-            groups = [100 * (a - b) for a, b in zip(_seed_groups(mine), _seed_groups(other))]
+            mine_groups, other_groups = _seed_groups(mine), _seed_groups(other)
+            if [len(g) for g in mine_groups] != [len(g) for g in other_groups]:
+                # split by seed differently (a record without episode counts): pool both
+                mine_groups = [np.concatenate(mine_groups)]
+                other_groups = [np.concatenate(other_groups)]
+            groups = [100 * (a - b) for a, b in zip(mine_groups, other_groups)]
             s = summarise_groups(groups)
             cells.append(f" {s['mean']:+4.0f} [{s['ci_low']:+5.0f}, {s['ci_high']:+5.0f}]")
         lines.append(f"{label:33s}" + "".join(cells))
