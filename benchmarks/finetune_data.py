@@ -148,7 +148,7 @@ def finetune(args) -> None:
               f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) of the "
               "commanded distance", flush=True)
         evaluations[label] = {"mean_fraction": stats["mean_fraction"],
-                             "fraction": [float(f) for f in stats["fraction"]]}
+                              "fraction": [float(f) for f in stats["fraction"]]}
 
     # Exponential moving averages of the finetuned weights (Polyak averaging): each one
     # plans beside the raw weights at every evaluation, on the same worlds.
