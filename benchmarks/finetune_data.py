@@ -144,8 +144,8 @@ def finetune(args) -> None:
         stats, _ = recipe.evaluate_planner(cfg, agent, cfg.target)
         low, high = stats["ci_fraction"]
         label = label or str(done)
-        print(f"after {label} updates, planner in {cfg.target}: {100 * stats['mean_fraction']:.0f}% "
-              f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) of the "
+        print(f"after {label} updates, planner in {cfg.target}: "
+              f"{100 * stats['mean_fraction']:.0f}% [{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) of the "
               "commanded distance", flush=True)
         evaluations[label] = {"mean_fraction": stats["mean_fraction"],
                               "fraction": [float(f) for f in stats["fraction"]]}
@@ -155,6 +155,7 @@ def finetune(args) -> None:
     if not all(0.0 < d < 1.0 for d in args.ema_decay):
         raise SystemExit(f"--ema-decay values must lie in (0, 1), got {args.ema_decay}")
     params = [p for loss in agent.finetune_losses for p in loss.trainable_parameters()]
+    current = [p.detach() for p in params]  # views of the live weights, made once
     averages = {decay: [p.detach().clone() for p in params] for decay in args.ema_decay}
 
     def evaluate_all(done):
@@ -169,7 +170,7 @@ def finetune(args) -> None:
             evaluate_all(i)
         metrics = step(sample())
         for decay, average in averages.items():
-            torch._foreach_lerp_(average, [p.detach() for p in params], 1.0 - decay)
+            torch._foreach_lerp_(average, current, 1.0 - decay)
         if i % 1000 == 0 or i == args.updates - 1:
             print(f"update {i}: consistency {metrics['loss_consistency']:.4f}", flush=True)
     if args.updates in eval_at:

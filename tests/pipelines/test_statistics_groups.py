@@ -115,8 +115,8 @@ def test_paired_differences_are_per_episode_stratified_by_seed_and_refuse_other_
     speeds = [0.25, 0.5, 0.75, 0.25]
     # the worlds vary a lot (-0.5 .. 0.9) and "mine" is 0.1 above "other" on each of them
     worlds = [[-0.5, 0.1, 0.9, 0.3], [0.2, -0.4, 0.6, 0.0]]
-    runs = [{"minutes": [0.0, 8.0],
-             "mine": [point(w, speeds), point([x + 0.1 + 0.01 * i for i, x in enumerate(w)], speeds)],
+    better = lambda w: [x + 0.1 + 0.01 * i for i, x in enumerate(w)]  # noqa: E731
+    runs = [{"minutes": [0.0, 8.0], "mine": [point(w, speeds), point(better(w), speeds)],
              "other": [point(w, speeds), point(w, speeds)]} for w in worlds]
     merged = aggregate_seeds(runs)
     assert merged["mine"][1]["seed_episodes"] == [4, 4]
