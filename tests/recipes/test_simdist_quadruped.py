@@ -6,6 +6,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from simdist.utils.precision import resolve_precision
+
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = [sys.executable, str(ROOT / "recipes" / "simdist_quadruped.py")]
 
@@ -33,6 +35,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
         assert (tmp_path / "stages" / f"{stage}.json").exists(), stage
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["torch_threads"] == 1
+    # the default "auto" precision, as resolved on this machine's CPU
+    auto = resolve_precision("auto", "cpu")
+    assert results["precision"] == {"mixed_precision": auto, "planner_precision": auto}
+    assert f"precision on cpu: training {auto}, planning {auto}" in proc.stdout
     assert set(results["expert_zero_shot"]) == {"sim", "slippery_slope"}
     assert set(results["planner_zero_shot"]) == {"sim", "slippery_slope"}
     assert results["dataset"]["transitions"] == 4 * 20
@@ -226,6 +232,8 @@ def test_planner_flags_reach_the_planner_config():
     assert Config(planner_policy_noise_steps=1).planner().policy_noise_steps == 1
     assert Config().planner().policy_noise_steps == 0  # noise on every step of the plan
     assert Config(planner_precision="bfloat16").planner().precision == "bfloat16"
+    # bfloat16 only where it is fast (simdist.utils.precision)
+    assert Config().planner().precision == Config().mixed_precision == "auto"
 
 
 @pytest.mark.parametrize("flags, message", [

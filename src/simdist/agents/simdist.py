@@ -28,7 +28,7 @@ from simdist.modules import SimDistWorldModel, WorldModelEnsemble
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.objectives import DynamicsFinetuneLoss, SimDistPretrainLoss
 from simdist.utils.device import module_device, move_to_device
-from simdist.utils.precision import AUTOCAST_DTYPES
+from simdist.utils.precision import autocast_dtype, check_precision
 
 
 @dataclass
@@ -70,8 +70,10 @@ class SimDistConfig:
     # "bfloat16": pretraining and finetuning updates run their forward pass under
     # ``torch.autocast`` (matmuls in bfloat16, weights, optimiser state and latents in
     # float32; DreamerV3 trains this way). 1.8-2.6x the updates/s on CPUs with AVX512-BF16
-    # (benchmarks/simdist_pretrain_precision.py).
-    # Planning has its own setting (PlannerConfig.precision). "none": float32 throughout.
+    # (benchmarks/simdist_pretrain_precision.py), 16x slower on CPUs with AVX2 only.
+    # "auto": bfloat16 where the device has native bfloat16 matmuls, else float32
+    # (simdist.utils.precision). Planning has its own setting (PlannerConfig.precision).
+    # "none": float32 throughout.
     mixed_precision: str = "none"
 
 
@@ -219,9 +221,7 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self.planner_config = planner_config
         if config.dynamics_members < 1:
             raise ValueError(f"dynamics_members must be >= 1, got {config.dynamics_members}")
-        if config.mixed_precision not in AUTOCAST_DTYPES:
-            raise ValueError(f"unknown mixed_precision {config.mixed_precision!r}; valid: "
-                             f"{', '.join(AUTOCAST_DTYPES)}")
+        check_precision(config.mixed_precision, "mixed_precision")
         extra = [world_model.fresh_dynamics() for _ in range(config.dynamics_members - 1)]
         self.pretrain_loss = SimDistPretrainLoss(world_model, horizon=config.horizon,
                                                  bc_weight=config.bc_weight,
@@ -269,7 +269,7 @@ class SimDistAgent(ckpt_format.LoadableAgent):
 
     def _autocast(self):
         """The forward pass's precision context (``config.mixed_precision``)."""
-        dtype = AUTOCAST_DTYPES[self.config.mixed_precision]
+        dtype = autocast_dtype(self.config.mixed_precision, self.device)
         return torch.autocast(self.device.type, dtype=dtype, enabled=dtype is not None)
 
     def pretrain_update(self, batch: TensorDictBase) -> dict[str, float]:

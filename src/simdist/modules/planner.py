@@ -20,7 +20,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from torch import nn
 
-from simdist.utils.precision import AUTOCAST_DTYPES
+from simdist.utils.precision import PRECISIONS, autocast_dtype
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,9 @@ class PlannerConfig:
     # Arithmetic of the candidates' rollouts: "none" (float32) or "bfloat16" (the models
     # run under torch.autocast: matmuls in bfloat16, scores accumulated and the MPPI
     # update in float32). On CPU cores with AVX512-BF16 a call costs 2.6x less; on an H200
-    # only large sample counts gain (benchmarks/README.md). Outputs stay float32.
+    # only large sample counts gain; on AVX2-only cores it costs several times more
+    # (benchmarks/README.md). "auto": bfloat16 where the device has native bfloat16
+    # matmuls, else float32 (simdist.utils.precision). Outputs stay float32.
     precision: str = "none"
 
     def __post_init__(self):
@@ -113,8 +115,8 @@ class PlannerConfig:
             raise ValueError(f"value_weight must be >= 0, got {self.value_weight}")
         if self.noise_beta < 0:
             raise ValueError(f"noise_beta must be >= 0, got {self.noise_beta}")
-        if self.precision not in AUTOCAST_DTYPES:
-            raise ValueError(f"precision must be one of {sorted(AUTOCAST_DTYPES)}, got "
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {list(PRECISIONS)}, got "
                              f"{self.precision!r}")
 
     @classmethod
@@ -400,7 +402,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
                                 device=latent.device, dtype=latent.dtype), c.noise_beta)
                 if c.policy_noise_steps:
                     policy_noise[:, :, c.policy_noise_steps:] = 0
-            dtype = AUTOCAST_DTYPES[c.precision]
+            dtype = autocast_dtype(c.precision, latent.device)
             try:
                 with torch.autocast(latent.device.type, dtype=dtype, enabled=dtype is not None):
                     mean, std, rewards, value, elites = self._plan_impl(

@@ -57,7 +57,7 @@ from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
                            save_atomic, save_memmap, write_json_atomic)
 from simdist.utils.cli import check, check_builds, check_positive, parse_config
-from simdist.utils.precision import AUTOCAST_DTYPES
+from simdist.utils.precision import PRECISIONS, resolve_precision
 from simdist.utils.stages import ABSENT_MEANS, field_defaults, read_json
 from simdist.viz import record_planning_episode
 
@@ -139,13 +139,17 @@ class Config:
     # benchmarks/README.md, "The previous action as an encoder input". A folder from before
     # the field was made without it.
     model_previous_action: bool = field(default=True, metadata={ABSENT_MEANS: False})
-    # precision of the world model's training updates: "none" (float32) or "bfloat16"
-    # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision).
-    # Planning has its own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a CPU with
-    # AVX512-BF16 (benchmarks/simdist_pretrain_precision.py); transfer as in float32, three
-    # seeds (benchmarks/README.md, "Run to run, an ensemble of pretrainings, and a larger model").
-    # (A folder from before the field existed trained in float32.)
-    mixed_precision: str = field(default="bfloat16", metadata={ABSENT_MEANS: "none"})
+    # precision of the world model's training updates: "none" (float32), "bfloat16"
+    # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision)
+    # or "auto": bfloat16 where the device has native bfloat16 matmuls, float32 elsewhere
+    # (simdist.utils.precision; results.json records what it resolved to). Planning has its
+    # own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a
+    # CPU with AVX512-BF16 and 16x slower on one with AVX2 only
+    # (benchmarks/simdist_pretrain_precision.py); transfer as in float32, three seeds
+    # (benchmarks/README.md, "Run to run, an ensemble of pretrainings, and a larger model").
+    # (A folder from before the field existed trained in float32; one made before "auto"
+    # became the default, 2026-12-02, resumes with --mixed-precision bfloat16.)
+    mixed_precision: str = field(default="auto", metadata={ABSENT_MEANS: "none"})
     # steps of latent rollout in the pretraining and finetuning losses. Shorter than the
     # planner's horizon on purpose: training over the planner's 10 steps ranked candidates
     # worse (Spearman .07 vs .23) and planned the same (slippery_slope 8 min: +17% vs +18%,
@@ -213,12 +217,15 @@ class Config:
     # ones (82/95/75% -> 93/61/104%; benchmarks/README.md, "One step of latency compensation").
     planner_latency_compensation: int = 0
     # arithmetic of the planner's candidate rollouts (PlannerConfig.precision): "none"
-    # (float32) or "bfloat16" (autocast; scores and the MPPI update stay float32). bfloat16
-    # plans 2.6x faster on these cores and the same models just as well: slippery_slope,
-    # 3 seeds' 2-minute models and one 8-minute model, paired with float32 on the same
-    # worlds -2 [-9, 5] points (benchmarks/README.md, "bfloat16 planning"). A folder from
-    # before the field reads as float32, so old runs resume as they were made.
-    planner_precision: str = field(default="bfloat16", metadata={ABSENT_MEANS: "none"})
+    # (float32), "bfloat16" (autocast; scores and the MPPI update stay float32) or "auto"
+    # (bfloat16 where the device has native bfloat16 matmuls, as mixed_precision). bfloat16
+    # plans 2.6x faster on AVX512-BF16 cores and the same models just as well:
+    # slippery_slope, 3 seeds' 2-minute models and one 8-minute model, paired with float32
+    # on the same worlds -2 [-9, 5] points (benchmarks/README.md, "bfloat16 planning"); on
+    # AVX2-only cores it plans several times slower. A folder from before the field reads
+    # as float32, so old runs resume as they were made; one made before "auto" became the
+    # default (2026-12-02) resumes with --planner-precision bfloat16.
+    planner_precision: str = field(default="auto", metadata={ABSENT_MEANS: "none"})
     # target rounds: cumulative minutes of 50 Hz target data after each round. Two rounds
     # (3.6 and 4.9 min on 2 cores with the wide model) keep the whole run at ~21 min
     # (README, recipe section); --budgets-min 1 2 4 8 for the curve.
@@ -262,11 +269,9 @@ class Config:
                 check_builds(name, get_target, target)
         check(self.model_size in SIMDIST_SIZES, "model_size",
               f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
-        check(self.mixed_precision in AUTOCAST_DTYPES, "mixed_precision",
-              f"unknown precision {self.mixed_precision!r}; valid: {sorted(AUTOCAST_DTYPES)}")
-        check(self.planner_precision in AUTOCAST_DTYPES, "planner_precision",
-              f"unknown precision {self.planner_precision!r}; valid: "
-              f"{sorted(AUTOCAST_DTYPES)}")
+        for name in ("mixed_precision", "planner_precision"):
+            check(getattr(self, name) in PRECISIONS, name,
+                  f"unknown precision {getattr(self, name)!r}; valid: {list(PRECISIONS)}")
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
                        "dataset_shard_episodes", "dataset_workers", "model_horizon",
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
@@ -778,6 +783,10 @@ def run(cfg: Config) -> dict:
     runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
                          runtime_keys=("device", "logger", "threads", "dataset_workers"))
     logger = make_logger(cfg.logger, out)
+    precision = {name: resolve_precision(getattr(cfg, name), cfg.device)
+                 for name in ("mixed_precision", "planner_precision")}
+    print(f"precision on {cfg.device}: training {precision['mixed_precision']}, planning "
+          f"{precision['planner_precision']} (none = float32)")
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
     def stage(name, fn):
@@ -827,7 +836,7 @@ def run(cfg: Config) -> dict:
                "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
                "planner_zero_shot": planner_zero_shot, "probe": probe,
                "recordings": recordings, "curves": results, "timings_s": runner.timings,
-               "torch_threads": torch.get_num_threads()}
+               "torch_threads": torch.get_num_threads(), "precision": precision}
     write_json_atomic(out / "results.json", summary)
     plot_results(results, get_target(cfg.target).name, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
