@@ -70,7 +70,7 @@ class SimDistConfig:
     # "bfloat16": pretraining and finetuning updates run their forward pass under
     # ``torch.autocast`` (matmuls in bfloat16, weights, optimiser state and latents in
     # float32; DreamerV3 trains this way). 1.8-2.6x the updates/s on CPUs with AVX512-BF16
-    # (benchmarks/simdist_pretrain_precision.py), 16x slower on CPUs with AVX2 only.
+    # (benchmarks/simdist_pretrain_precision.py), 16-25x slower on CPUs with AVX2 only.
     # "auto": bfloat16 where the device has native bfloat16 matmuls, else float32
     # (simdist.utils.precision). Planning has its own setting (PlannerConfig.precision).
     # "none": float32 throughout.

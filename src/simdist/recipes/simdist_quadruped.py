@@ -144,7 +144,7 @@ class Config:
     # or "auto": bfloat16 where the device has native bfloat16 matmuls, float32 elsewhere
     # (simdist.utils.precision; results.json records what it resolved to). Planning has its
     # own setting (planner_precision). bfloat16 trains the wide model 2.3-2.6x faster on a
-    # CPU with AVX512-BF16 and 16x slower on one with AVX2 only
+    # CPU with AVX512-BF16 and 16-25x slower on one with AVX2 only
     # (benchmarks/simdist_pretrain_precision.py); transfer as in float32, three seeds
     # (benchmarks/README.md, "Run to run, an ensemble of pretrainings, and a larger model").
     # (A folder from before the field existed trained in float32; one made before "auto"
