@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from simdist.utils.precision import resolve_precision
+from tests.in_process import run_script
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = [sys.executable, str(ROOT / "recipes" / "simdist_quadruped.py")]
@@ -23,6 +24,11 @@ def tiny_expert(tmp_path_factory):
 def _run(*args, timeout=300):
     return subprocess.run([*RECIPE, *map(str, args)], capture_output=True, text=True,
                           timeout=timeout)
+
+
+def _run_here(*args, capsys):
+    """The recipe in this process: for what fails (or prints help) before any work."""
+    return run_script(RECIPE[1], *args, capsys=capsys)
 
 
 def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert):
@@ -112,17 +118,19 @@ def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert):
     assert resumed["target_steps"] == first["target_steps"]
 
 
-def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path):
-    proc = _run("--target", "moon", "--output-dir", tmp_path / "a")
+def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path, capsys):
+    proc = _run_here("--target", "moon", "--output-dir", tmp_path / "a", capsys=capsys)
     assert proc.returncode != 0 and "unknown target domain 'moon'" in proc.stderr
-    proc = _run("--preset", "tiny", "--expert", tmp_path / "none.pt", "--output-dir", tmp_path / "b")
+    proc = _run_here("--preset", "tiny", "--expert", tmp_path / "none.pt", "--output-dir",
+                     tmp_path / "b", capsys=capsys)
     assert proc.returncode != 0 and "recipes/train_expert.py" in proc.stderr
-    proc = _run("--preset", "tiny", "--device", "tpu9", "--output-dir", tmp_path / "c")
+    proc = _run_here("--preset", "tiny", "--device", "tpu9", "--output-dir", tmp_path / "c",
+                     capsys=capsys)
     assert proc.returncode == 2 and "unknown device 'tpu9'" in proc.stderr
     assert not (tmp_path / "c").exists()  # refused before any work
 
 
-def test_help_lists_every_config_field_with_its_default():
+def test_help_lists_every_config_field_with_its_default(capsys):
     import dataclasses
     import importlib.util
     spec = importlib.util.spec_from_file_location("simdist_quadruped_recipe",
@@ -130,13 +138,13 @@ def test_help_lists_every_config_field_with_its_default():
     recipe = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = recipe  # dataclasses resolve annotations through it
     spec.loader.exec_module(recipe)
-    proc = _run("--help")
+    proc = _run_here("--help", capsys=capsys)
     assert proc.returncode == 0
     text = " ".join(proc.stdout.split())  # the help wraps long lines
     for f in dataclasses.fields(recipe.Config):
         assert "--" + f.name.replace("_", "-") in text, f.name
     assert "(default: 32)" in text and "--preset {default,paper,tiny}" in text
-    tiny = " ".join(_run("--preset", "tiny", "--help").stdout.split())
+    tiny = " ".join(_run_here("--preset", "tiny", "--help", capsys=capsys).stdout.split())
     assert "(default: 2)" in tiny  # a preset's values become the defaults shown
 
 
@@ -259,8 +267,8 @@ def test_planner_flags_reach_the_planner_config():
     (["--ensemble-shared-encoder"], "ensemble_shared_encoder: needs --ensemble-size > 1"),
     (["--model-ignored-observations", "toes"], "unknown observation groups ['toes']"),
 ])
-def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message):
-    proc = _run(*flags, "--output-dir", tmp_path / "out")
+def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message, capsys):
+    proc = _run_here(*flags, "--output-dir", tmp_path / "out", capsys=capsys)
     assert proc.returncode == 2
     assert message in " ".join(proc.stderr.replace("│", " ").split())
     assert not (tmp_path / "out").exists()

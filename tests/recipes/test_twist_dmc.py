@@ -9,6 +9,7 @@ import torch
 
 from simdist.agents import load_agent
 from simdist.viz import entity_paths
+from tests.in_process import run_script
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = [sys.executable, str(ROOT / "recipes" / "twist_dmc.py")]
@@ -23,7 +24,17 @@ def _run(*args, timeout=300):
                           timeout=timeout)
 
 
-def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
+def _run_here(*args, capsys):
+    """The recipe in this process: for what fails (or prints help) before any work."""
+    return run_script(RECIPE[1], *args, capsys=capsys)
+
+
+def _benchmark(name: str, *args, capsys):
+    """``python benchmarks/<name>.py args`` in this process (see tests/in_process.py)."""
+    return run_script(ROOT / "benchmarks" / f"{name}.py", *args, capsys=capsys)
+
+
+def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     # D with its images: the diagnosis below reads them (the default renders none here)
     proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 2,
                 "--teacher-pixels", "always")
@@ -136,11 +147,9 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
                            # the same teacher and states through another camera
                            ("probe", ["--render-camera", "1", "--heldout-renders"]),
                            ("pixels", ["--render-camera", "1", "--name", "cam"])):
-        diag = subprocess.run(
-            [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
-             "--preset", "tiny", "--outputs", str(tmp_path), "--updates", "2",
-             "--episodes", "1", "--batch", "4", "--work", str(tmp_path / "diagnosis"), *extra],
-            capture_output=True, text=True, timeout=300)
+        diag = _benchmark("twist_diagnosis", variant, "--preset", "tiny", "--outputs",
+                          tmp_path, "--updates", "2", "--episodes", "1", "--batch", "4",
+                          "--work", tmp_path / "diagnosis", *extra, capsys=capsys)
         assert diag.returncode == 0, diag.stderr
         line = json.loads(diag.stdout.strip().splitlines()[-1])
         assert line["variant"] == variant and line["updates"] == 2
@@ -200,22 +209,21 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
         if "--heldout-renders" in extra:
             assert len(line["r2_heldout"]) == 5 and line["images_train"] % 2 == 0
     # the noisy-Oracle variant: without noise every group is the same rollout
-    lines = _oracle_diagnosis(tmp_path, "noisy", "--noise", "0,0.5")
+    lines = _oracle_diagnosis(tmp_path, "noisy", "--noise", "0,0.5", capsys=capsys)
     assert [x["dimensions"] for x in lines] == ["all", "all", "sin(pole)", "sin(pole)",
                                                 "pole angular velocity",
                                                 "pole angular velocity"]
     assert len({x["mean"] for x in lines if x["noise_x_std"] == 0}) == 1
     noiseless = lines[0]["mean"]
     # the Oracle reading the state late: delay 0 is the Oracle itself
-    lines = _oracle_diagnosis(tmp_path, "delayed", "--delays", "0,3")
+    lines = _oracle_diagnosis(tmp_path, "delayed", "--delays", "0,3", capsys=capsys)
     assert [x["delay_steps"] for x in lines] == [0, 3]
     assert lines[0]["mean"] == noiseless  # the same worlds and policy, the state on time
     # a student-specific actor by DAgger on the frozen student's latents: fitted on D,
     # then on D plus the student's own labelled episodes
-    dagger = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_dagger.py"), "--outputs",
-         str(tmp_path), "--iterations", "1", "--episodes-per-iter", "2", "--updates", "3",
-         "--episodes", "1"], capture_output=True, text=True, timeout=300)
+    dagger = _benchmark("twist_dagger", "--outputs", tmp_path, "--iterations", "1",
+                        "--episodes-per-iter", "2", "--updates", "3", "--episodes", "1",
+                        capsys=capsys)
     assert dagger.returncode == 0, dagger.stderr
     lines = [json.loads(x) for x in dagger.stdout.splitlines() if x.startswith("{")]
     assert [x["iteration"] for x in lines] == [None, 0, 1]
@@ -226,10 +234,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     # the run's own settings: tiny episodes (the default preset's are 500 steps)
     assert lines[2]["steps"] - lines[1]["steps"] == 2 * recipe_cfg_episode_steps(tmp_path)
     # one student per teacher snapshot, each validated, on the run's own (tiny) settings
-    snap = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_snapshot_students.py"), "--outputs",
-         str(tmp_path), "--work", str(tmp_path / "snapshots")],
-        capture_output=True, text=True, timeout=300)
+    snap = _benchmark("twist_snapshot_students", "--outputs", tmp_path, "--work",
+                      tmp_path / "snapshots", capsys=capsys)
     assert snap.returncode == 0, snap.stderr
     lines = [json.loads(x) for x in snap.stdout.splitlines() if x.startswith("{")]
     assert [x["snapshot"] for x in lines] == ["00000", "00001"]
@@ -242,21 +248,17 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path):
     # run's own figure to the bit (same weights, same worlds)
     readout = _recipe_module().readout_file(_recipe_module().saved_config(tmp_path),
                                             "cartpole-balance")
-    redeploy = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_redeploy_readout.py"), "--outputs",
-         str(tmp_path), "--seeds", "0", "--readout", str(readout)],
-        capture_output=True, text=True, timeout=300)
+    redeploy = _benchmark("twist_redeploy_readout", "--outputs", tmp_path, "--seeds", "0",
+                          "--readout", readout, capsys=capsys)
     assert redeploy.returncode == 0, redeploy.stderr
     line = json.loads([x for x in redeploy.stdout.splitlines() if x.startswith("{")][-1])
     assert line["returns"] == line["run_returns"] and line["chosen"] is not None
 
 
-def _oracle_diagnosis(outputs, variant: str, *flags: str) -> list[dict]:
+def _oracle_diagnosis(outputs, variant: str, *flags: str, capsys) -> list[dict]:
     """The JSON lines of a student-free twist_diagnosis variant on one tiny episode."""
-    diag = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_diagnosis.py"), variant,
-         "--preset", "tiny", "--outputs", str(outputs), *flags, "--episodes", "1"],
-        capture_output=True, text=True, timeout=300)
+    diag = _benchmark("twist_diagnosis", variant, "--preset", "tiny", "--outputs", outputs,
+                      *flags, "--episodes", "1", capsys=capsys)
     assert diag.returncode == 0, diag.stderr
     return [json.loads(x) for x in diag.stdout.splitlines() if x.startswith("{")]
 
@@ -402,28 +404,30 @@ def test_a_candidate_of_the_last_snapshot_deploys_with_that_snapshots_actor(tmp_
         recipe.select_student({"domain": skipped})
 
 
-def test_unknown_task_is_a_clear_error(tmp_path):
-    proc = _run("--preset", "tiny", "--tasks", "cartpole-fly", "--output-dir", tmp_path)
+def test_unknown_task_is_a_clear_error(tmp_path, capsys):
+    proc = _run_here("--preset", "tiny", "--tasks", "cartpole-fly", "--output-dir", tmp_path,
+                     capsys=capsys)
     assert proc.returncode != 0 and "unknown control-suite tasks" in proc.stderr
 
 
-def test_an_unavailable_device_is_a_clear_error_before_any_work(tmp_path):
+def test_an_unavailable_device_is_a_clear_error_before_any_work(tmp_path, capsys):
     device = "cuda:99"  # more CUDA devices than any machine here has
-    proc = _run("--preset", "tiny", "--device", device, "--output-dir", tmp_path / "run")
+    proc = _run_here("--preset", "tiny", "--device", device, "--output-dir", tmp_path / "run",
+                     capsys=capsys)
     assert proc.returncode == 2 and f"device '{device}' asked for" in proc.stderr
     assert not (tmp_path / "run").exists()
 
 
-def test_help_lists_every_config_field_and_bad_values_fail_before_work(tmp_path):
+def test_help_lists_every_config_field_and_bad_values_fail_before_work(tmp_path, capsys):
     import dataclasses
     recipe = _recipe_module()
-    text = " ".join(_run("--help").stdout.split())
+    text = " ".join(_run_here("--help", capsys=capsys).stdout.split())
     for f in dataclasses.fields(recipe.Config):
         assert "--" + f.name.replace("_", "-") in text, f.name
     for flags, message in ((["--jobs", "0"], "jobs: must be > 0"),
                            (["--student-norm", "batch"], "student_norm: must be one of"),
                            (["--seeds", "1", "1"], "seeds: need distinct seeds")):
-        proc = _run(*flags, "--output-dir", tmp_path / "out")
+        proc = _run_here(*flags, "--output-dir", tmp_path / "out", capsys=capsys)
         assert proc.returncode == 2 and message in " ".join(proc.stderr.replace("│", " ").split())
         assert not (tmp_path / "out").exists()
 
@@ -447,14 +451,12 @@ def test_a_run_killed_inside_the_online_teacher_resumes_to_the_uninterrupted_res
         a["runs"]["cartpole-balance_s0"]["teacher"]["episode_returns"]
 
 
-def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path):
+def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path, capsys):
     """benchmarks/twist_teacher_budget.py: one Oracle figure per chunk, the run resumed
     between chunks (more updates at each point), the blind references beside it."""
     out = tmp_path / "budget"
-    run = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "twist_teacher_budget.py"), "--preset",
-         "tiny", "--steps", "40", "--chunk", "20", "--out", str(out)],
-        capture_output=True, text=True, timeout=300)
+    run = _benchmark("twist_teacher_budget", "--preset", "tiny", "--steps", "40", "--chunk",
+                     "20", "--out", out, capsys=capsys)
     assert run.returncode == 0, run.stderr
     result = json.loads((out / "cartpole-balance.json").read_text())
     curve = result["curves"]["0"]
@@ -464,16 +466,14 @@ def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path):
     assert (out / "cartpole-balance_s0" / "agent.pt").exists()
 
 
-def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_path):
+def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_path, capsys):
     """benchmarks/pixel_dreamer_budget.py: a pixel Dreamer at another update rate, scored
     on held-out scenes and dm_control's own, beside the blind references; a larger
     --steps continues the same run (more updates, the first episodes' returns kept)."""
     out = tmp_path / "budget"
     def run(steps):
-        proc = subprocess.run(
-            [sys.executable, str(ROOT / "benchmarks" / "pixel_dreamer_budget.py"), "--preset",
-             "tiny", "--steps", str(steps), "--train-every", "10", "--out", str(out)],
-            capture_output=True, text=True, timeout=300)
+        proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", steps,
+                          "--train-every", "10", "--out", out, capsys=capsys)
         assert proc.returncode == 0, proc.stderr
         return json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10" /
                            f"result_{steps}.json").read_text())
