@@ -99,8 +99,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     assert partial.returncode != 0 and "has no result for ['slippery_slope']" in partial.stderr
 
 
-def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert):
-    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
+def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert, capsys):
+    # (without the recordings: they come after the rounds and are checked below)
+    args = ("--preset", "tiny", "--expert", tiny_expert, "--no-record", "--output-dir", tmp_path)
+    proc = _run(*args)
     assert proc.returncode == 0, proc.stderr
     record = tmp_path / "stages" / "round_2.json"
     first = json.loads(record.read_text())["result"]
@@ -108,7 +110,7 @@ def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert):
     record.unlink()
     (tmp_path / "stages" / "round_2" / "sac.ckpt").unlink()
     data_before = sorted(p.stat().st_mtime_ns for p in (tmp_path / "stages" / "round_2" / "data").rglob("*.memmap"))
-    again = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
+    again = _run(*args)
     assert again.returncode == 0, again.stderr
     assert "round 2: finetune dynamics" not in again.stderr  # restored, not retrained
     data_after = sorted(p.stat().st_mtime_ns for p in (tmp_path / "stages" / "round_2" / "data").rglob("*.memmap"))
@@ -116,6 +118,15 @@ def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert):
     resumed = json.loads(record.read_text())["result"]
     assert resumed["simdist_eval"] == first["simdist_eval"]
     assert resumed["target_steps"] == first["target_steps"]
+    # --no-record skipped the probe and the recordings; a rerun with them adds just those
+    assert not (tmp_path / "stages" / "probe.json").exists()
+    assert not list(tmp_path.glob("*.rrd")) and not list(tmp_path.glob("*.mp4"))
+    assert "rerun recordings" not in again.stdout
+    recorded = run_script(RECIPE[1], *args[:-3], "--output-dir", tmp_path, capsys=capsys)
+    assert recorded.returncode == 0, recorded.stderr
+    assert recorded.stdout.count("already done") == 7  # every stage but probe, recordings
+    assert (tmp_path / "stages" / "probe.json").exists()
+    assert (tmp_path / "rerun_after.rrd").stat().st_size > 0
 
 
 def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path, capsys):
@@ -310,7 +321,7 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
 def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert):
     # (with the default encoder, which reads previous actions, through every stage)
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
-                "--ensemble-shared-encoder", "--budgets-min", 0.02,
+                "--ensemble-shared-encoder", "--budgets-min", 0.02, "--no-record",
                 "--output-dir", tmp_path, "--threads", 1)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
@@ -326,7 +337,7 @@ def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_e
 def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_expert):
     icy = '{"name": "icy_ramp", "friction": 0.4, "slope_deg": 6.0}'  # a custom target
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--seeds", 0, 1,
-                "--budgets-min", 0.02, "--target", icy, "--output-dir", tmp_path)
+                "--budgets-min", 0.02, "--target", icy, "--no-record", "--output-dir", tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "Forward progress in icy_ramp" in proc.stdout
     per_seed = [json.loads((tmp_path / f"seed_{s}" / "results.json").read_text())
@@ -352,7 +363,7 @@ def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_e
 @pytest.fixture(scope="module")
 def uninterrupted_tiny_run(tmp_path_factory, tiny_expert):
     out = tmp_path_factory.mktemp("uninterrupted")
-    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", out)
+    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--no-record", "--output-dir", out)
     assert proc.returncode == 0, proc.stderr
     return out
 
@@ -363,7 +374,7 @@ def test_a_run_killed_inside_a_stage_resumes_to_the_uninterrupted_results(
     """SIGKILL inside pretraining, and inside a finetuning round between its methods."""
     from tests.recipes.kill_helpers import run_killed_when
 
-    args = ["--preset", "tiny", "--expert", str(tiny_expert), "--output-dir"]
+    args = ["--preset", "tiny", "--expert", str(tiny_expert), "--no-record", "--output-dir"]
     full = uninterrupted_tiny_run
     killed = tmp_path / "killed"
     assert run_killed_when([*RECIPE, *args, str(killed)], killed / marker)

@@ -180,6 +180,10 @@ class Config:
     ensemble_shared_encoder: bool = False
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
+    # rerun recordings and videos of one target episode before and after finetuning (and
+    # the probe they draw). Off for sweeps that only need the tables: a rerun with it on
+    # adds them to a finished folder.
+    record: bool = True
     # Value labels are discounted returns, up to 1/(1-gamma) = 100 rewards: weighting their
     # squared error by ~(1-gamma)^2 regresses V/100 at weight 1 (errors of 0.1 in V/100
     # would otherwise cost 100x the consistency term in the shared encoder).
@@ -781,7 +785,8 @@ def run(cfg: Config) -> dict:
     # finished stages are skipped when rerun; device, threads and dataset workers may differ
     # from the first run's
     runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
-                         runtime_keys=("device", "logger", "threads", "dataset_workers"))
+                         runtime_keys=("device", "logger", "threads", "dataset_workers",
+                                       "record"))
     logger = make_logger(cfg.logger, out)
     precision = {name: resolve_precision(getattr(cfg, name), cfg.device)
                  for name in ("mixed_precision", "planner_precision")}
@@ -819,15 +824,17 @@ def run(cfg: Config) -> dict:
                 for domain in tqdm(["sim", cfg.target], desc="planner zero-shot")}
 
     planner_zero_shot = stage("zero_shot", zero_shot)
-    probe = stage("probe", lambda d: probe_stage(cfg, dataset["path"], pretrained, d, logger))
+    probe = (stage("probe", lambda d: probe_stage(cfg, dataset["path"], pretrained, d, logger))
+             if cfg.record else None)
     rounds, previous = [], None
     for k in range(len(cfg.budgets_min)):
         previous = stage(f"round_{k + 1}", lambda d, k=k, p=previous: round_stage(
             cfg, k, pretrained, expert["path"], d, p, logger))
         rounds.append(previous)
 
-    recordings = stage("recordings",
-                       lambda d: recording_stage(cfg, pretrained, probe, rounds[-1], out))
+    recordings = (stage("recordings",
+                        lambda d: recording_stage(cfg, pretrained, probe, rounds[-1], out))
+                  if cfg.record else {})
     results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds)
     runner.close()
     print_table(results, get_target(cfg.target).name, reference=SIMDIST)
@@ -842,8 +849,9 @@ def run(cfg: Config) -> dict:
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
         print(f"training curves: {out / 'training_curves.png'} (scalars in {out / 'logs'})")
-    print("rerun recordings (open with `rerun FILE`) and videos: "
-          + ", ".join(recordings.values()))
+    if recordings:
+        print("rerun recordings (open with `rerun FILE`) and videos: "
+              + ", ".join(recordings.values()))
     return summary
 
 
