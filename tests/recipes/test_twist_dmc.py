@@ -5,6 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from simdist.agents import load_agent
@@ -432,19 +433,30 @@ def test_help_lists_every_config_field_and_bad_values_fail_before_work(tmp_path,
         assert not (tmp_path / "out").exists()
 
 
-def test_a_run_killed_inside_the_online_teacher_resumes_to_the_uninterrupted_results(tmp_path):
+# the teacher chain alone, in one process, without the recording: run once for the module
+TEACHER_CHAIN = ["--preset", "tiny", "--jobs", "1", "--no-baselines", "--no-record"]
+
+
+@pytest.fixture(scope="module")
+def teacher_chain_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("teacher_chain")
+    proc = _run(*TEACHER_CHAIN, "--output-dir", out)
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_a_run_killed_inside_the_online_teacher_resumes_to_the_uninterrupted_results(
+        tmp_path, teacher_chain_run):
     from tests.recipes.kill_helpers import run_killed_when
 
-    args = ["--preset", "tiny", "--jobs", "1", "--no-record", "--output-dir"]
-    full = _run(*args, tmp_path / "full")
-    assert full.returncode == 0, full.stderr
+    args = [*TEACHER_CHAIN, "--output-dir"]
     killed = tmp_path / "killed"
     # the teacher's second episode is on disk: killed between episodes, mid-stage
     marker = killed / "stages" / "cartpole-balance_s0_teacher" / "episodes" / "00001"
     assert run_killed_when([*RECIPE, *args, str(killed)], marker)
     resumed = _run(*args, killed)
     assert resumed.returncode == 0, resumed.stderr
-    a = json.loads((tmp_path / "full" / "results.json").read_text())
+    a = json.loads((teacher_chain_run / "results.json").read_text())
     b = json.loads((killed / "results.json").read_text())
     assert b["results"] == a["results"]
     assert b["runs"]["cartpole-balance_s0"]["teacher"]["episode_returns"] == \
@@ -485,14 +497,12 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
         assert len(r["heldout_scenes"]["returns"]) == len(r["own_scene"]["returns"]) == 2
 
 
-def test_no_baselines_runs_only_the_teacher_chain(tmp_path):
-    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
-                "--no-record")
-    assert proc.returncode == 0, proc.stderr
-    task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
+def test_no_baselines_runs_only_the_teacher_chain(teacher_chain_run):
+    out = teacher_chain_run
+    task = json.loads((out / "results.json").read_text())["results"]["cartpole-balance"]
     assert list(task) == [m for m in METHODS if "Dreamer" not in m and "SAC" not in m]
-    assert not list((tmp_path / "stages").glob("*dreamer*"))
-    assert not list((tmp_path / "stages").glob("*sac*"))
+    assert not list((out / "stages").glob("*dreamer*"))
+    assert not list((out / "stages").glob("*sac*"))
 
 
 def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path):
@@ -507,7 +517,8 @@ def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path):
                        (["no_noise"], "recording shows the TWIST student")):
         with pytest.raises(ConfigError, match=match):
             recipe.Config(students=bad)
-    args = ("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines")
+    args = ("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
+            "--no-record")
     proc = _run(*args, "--students", "twist")
     assert proc.returncode == 0, proc.stderr
     task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
@@ -581,7 +592,7 @@ def test_teacher_actor_noise_reaches_only_the_teachers_actor_critic():
     assert cfg.dreamer().actor_input_noise == 0.0
 
 
-def test_teacher_selection_deploys_the_best_validated_snapshot(tmp_path):
+def test_teacher_selection_deploys_the_best_validated_snapshot(teacher_chain_run):
     import pytest
 
     from simdist.utils import load_checkpoint
@@ -592,10 +603,9 @@ def test_teacher_selection_deploys_the_best_validated_snapshot(tmp_path):
         recipe.Config(**{**recipe.PRESETS["tiny"], "teacher_snapshots": 3})  # 2 episodes
     with pytest.raises(ConfigError, match="teacher_select_episodes"):
         recipe.Config(teacher_select_episodes=0)
-    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
-                "--no-record", "--students", "twist")  # the tiny preset keeps 2 snapshots
-    assert proc.returncode == 0, proc.stderr
-    run = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"]
+    # the teacher chain's run (the tiny preset keeps 2 snapshots)
+    results = json.loads((teacher_chain_run / "results.json").read_text())
+    run = results["runs"]["cartpole-balance_s0"]
     teacher = run["teacher"]
     candidates = teacher["selection"]["candidates"]
     best = max(candidates, key=lambda c: c["mean"])
