@@ -4,7 +4,6 @@ values fail before any work."""
 import importlib
 import importlib.util
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import pytest
 
 from simdist.agents import DreamerAgent, DreamerConfig, SimDistAgent, TwistStudent
 from simdist.modules import DreamerWorldModel, PlannerConfig, SimDistWorldModel
+from tests.in_process import run_script
 
 ROOT = Path(__file__).resolve().parents[2]
 SPEC = importlib.util.spec_from_file_location("evaluate_recipe", ROOT / "recipes" / "evaluate.py")
@@ -93,9 +93,8 @@ def test_missing_corrupt_or_taskless_checkpoints_are_named(tmp_path, capsys):
         recipe.main([])
 
 
-def test_help_lists_every_field_with_its_default():
-    proc = subprocess.run([sys.executable, str(ROOT / "recipes" / "evaluate.py"), "--help"],
-                          capture_output=True, text=True, timeout=120)
+def test_help_lists_every_field_with_its_default(capsys):
+    proc = run_script(ROOT / "recipes" / "evaluate.py", "--help", capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     for flag in ("--checkpoint", "--task", "--target", "--episodes", "--steps", "--seed",
                  "--video", "--video-size", "--output", "--device", "--preset",

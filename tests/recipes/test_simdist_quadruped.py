@@ -1,4 +1,5 @@
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -31,7 +32,7 @@ def _run_here(*args, capsys):
     return run_script(RECIPE[1], *args, capsys=capsys)
 
 
-def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert):
+def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert, capsys):
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path,
                 "--threads", 1)
     assert proc.returncode == 0, proc.stderr
@@ -80,23 +81,25 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
         assert (tmp_path / "logs" / "scalars" / f"{scalar}.csv").exists(), scalar
     assert (tmp_path / "training_curves.png").stat().st_size > 0
 
-    # a rerun with torch's default thread count and another number of dataset workers
-    # reuses every stage (both are runtime settings: shards are the same bytes either way)
-    again = _run("--preset", "tiny", "--expert", tiny_expert, "--dataset-workers", 2,
-                 "--output-dir", tmp_path)
+    # a rerun without --threads and with another number of dataset workers reuses every
+    # stage (both are runtime settings: shards are the same bytes either way); these
+    # reruns do no work, so they run in this process (tests/in_process.py)
+    again = _run_here("--preset", "tiny", "--expert", tiny_expert, "--dataset-workers", 2,
+                      "--output-dir", tmp_path, capsys=capsys)
     assert again.returncode == 0 and again.stdout.count("already done") == len(stages) + 2
     assert json.loads((tmp_path / "results.json").read_text())["curves"] == curves
-    changed = _run("--preset", "tiny", "--episodes", 3, "--expert", tiny_expert,
-                   "--output-dir", tmp_path)
-    assert changed.returncode != 0 and "different config" in changed.stderr
+    with pytest.raises(ValueError, match="different config"):
+        _run_here("--preset", "tiny", "--episodes", 3, "--expert", tiny_expert,
+                  "--output-dir", tmp_path, capsys=capsys)
     # A stage record that lacks a target of this config (e.g. copied from another run's
     # folder) is refused by name instead of failing with a KeyError at the end.
     record = tmp_path / "stages" / "expert_zero_shot.json"
     stored = json.loads(record.read_text())
     del stored["result"]["slippery_slope"]
     record.write_text(json.dumps(stored))
-    partial = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path)
-    assert partial.returncode != 0 and "has no result for ['slippery_slope']" in partial.stderr
+    with pytest.raises(ValueError, match=re.escape("has no result for ['slippery_slope']")):
+        _run_here("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path,
+                  capsys=capsys)
 
 
 def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert, capsys):

@@ -112,13 +112,15 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     # stages ran in two processes (the teacher chain beside the pixel Dreamers)
     assert results["jobs"] == 2 and "wall time this run" in proc.stdout
 
-    again = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1,  # in-process
-                 "--teacher-pixels", "always")
+    # reruns that do no work run in this process (tests/in_process.py)
+    again = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1,
+                      "--teacher-pixels", "always", capsys=capsys)
     assert again.returncode == 0, again.stderr
     # 10 stages per task-seed, 3 candidates for each of the 3 students, and the recording
     assert again.stdout.count("already done") == 20
-    changed = _run("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3)
-    assert changed.returncode != 0 and "different config" in changed.stderr
+    with pytest.raises(ValueError, match="different config"):
+        _run_here("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3,
+                  capsys=capsys)
 
     # the gap-diagnosis script runs on a finished recipe output
     # (the second probe: the perception options, re-rendered extra and held-out images)
