@@ -28,7 +28,8 @@ def _run(*args, timeout=300):
 
 
 def _run_here(*args, capsys):
-    """The recipe in this process: for what fails (or prints help) before any work."""
+    """The recipe in this process (tests/in_process.py): for what fails or prints help
+    before any work, and for runs whose results are not compared with a subprocess's."""
     return run_script(RECIPE[1], *args, capsys=capsys)
 
 
@@ -288,13 +289,14 @@ def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, mes
     assert not (tmp_path / "out").exists()
 
 
-def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, tiny_expert):
+def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, tiny_expert,
+                                                                     capsys):
     # with prioritised finetuning slices: each member ranks the slices by its own error;
     # and an encoder of observations alone (the default reads the previous action too)
-    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
-                "--budgets-min", 0.02, "--finetune-priority-alpha", 0.6,
-                "--no-model-previous-action",
-                "--output-dir", tmp_path, "--threads", 1)
+    proc = _run_here("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
+                     "--budgets-min", 0.02, "--finetune-priority-alpha", 0.6,
+                     "--no-model-previous-action",
+                     "--output-dir", tmp_path, "--threads", 1, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
     pretrain = json.loads((stages / "pretrain.json").read_text())["result"]
@@ -321,11 +323,11 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
     assert not torch.equal(member_0, member_1) and not torch.equal(member_0, torch.ones_like(member_0))
 
 
-def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert):
+def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert, capsys):
     # (with the default encoder, which reads previous actions, through every stage)
-    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
-                "--ensemble-shared-encoder", "--budgets-min", 0.02, "--no-record",
-                "--output-dir", tmp_path, "--threads", 1)
+    proc = _run_here("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,
+                     "--ensemble-shared-encoder", "--budgets-min", 0.02, "--no-record",
+                     "--output-dir", tmp_path, "--threads", 1, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
     pretrain = json.loads((stages / "pretrain.json").read_text())["result"]
@@ -337,10 +339,11 @@ def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_e
     assert "pretrain world model (member 1)" not in proc.stderr  # one joint pretraining
 
 
-def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_expert):
+def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_expert, capsys):
     icy = '{"name": "icy_ramp", "friction": 0.4, "slope_deg": 6.0}'  # a custom target
-    proc = _run("--preset", "tiny", "--expert", tiny_expert, "--seeds", 0, 1,
-                "--budgets-min", 0.02, "--target", icy, "--no-record", "--output-dir", tmp_path)
+    proc = _run_here("--preset", "tiny", "--expert", tiny_expert, "--seeds", 0, 1,
+                     "--budgets-min", 0.02, "--target", icy, "--no-record", "--output-dir",
+                     tmp_path, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     assert "Forward progress in icy_ramp" in proc.stdout
     per_seed = [json.loads((tmp_path / f"seed_{s}" / "results.json").read_text())

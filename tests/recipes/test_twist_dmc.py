@@ -26,7 +26,8 @@ def _run(*args, timeout=300):
 
 
 def _run_here(*args, capsys):
-    """The recipe in this process: for what fails (or prints help) before any work."""
+    """The recipe in this process (tests/in_process.py): for what fails or prints help
+    before any work, and for runs whose results are not compared with a subprocess's."""
     return run_script(RECIPE[1], *args, capsys=capsys)
 
 
@@ -507,7 +508,7 @@ def test_no_baselines_runs_only_the_teacher_chain(teacher_chain_run):
     assert not list((out / "stages").glob("*sac*"))
 
 
-def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path):
+def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path, capsys):
     import pytest
 
     from simdist.utils.cli import ConfigError
@@ -528,7 +529,7 @@ def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path):
     assert not any("w/o" in name for name in task)
     assert not list((tmp_path / "stages").glob("*no_noise*"))
     # a later run adds an ablation into the same folder: students pick rows, not figures
-    proc = _run(*args, "--students", "twist", "no_noise")
+    proc = _run_here(*args, "--students", "twist", "no_noise", capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     assert "stage cartpole-balance_s0_twist: already done" in proc.stdout
     task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
@@ -772,7 +773,7 @@ def test_exact_positions_feeds_the_student_the_readouts_dimensions_of_the_state(
     assert td["action"].shape == (3, 1) and "positions" not in td.keys()
 
 
-def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tmp_path):
+def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tmp_path, capsys):
     import pytest
 
     from simdist.utils.cli import ConfigError
@@ -781,9 +782,10 @@ def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tm
     assert recipe.Config().readout_student_inputs == "positions"  # D's exact values
     with pytest.raises(ConfigError, match="readout_student_inputs"):
         recipe.Config(readout_student_inputs="state")
-    proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1, "--no-baselines",
-                "--no-record", "--students", "twist", "--readout-student-inputs", "readings",
-                "--readout-student-states", "domain", "--student-last-teacher-states", "domain")
+    proc = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1,
+                     "--no-baselines", "--no-record", "--students", "twist",
+                     "--readout-student-inputs", "readings", "--readout-student-states",
+                     "domain", "--student-last-teacher-states", "domain", capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     twist = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"][
         recipe.TWIST]
