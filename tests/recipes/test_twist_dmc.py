@@ -1,4 +1,5 @@
-"""The TWIST recipe end to end on its tiny preset, in a subprocess."""
+"""The TWIST recipe end to end on its tiny preset: in a subprocess where the command line
+itself is checked (worker processes, SIGKILL and resume), else in this process."""
 
 import json
 import subprocess

@@ -782,8 +782,8 @@ def run(cfg: Config) -> dict:
     out = Path(cfg.output_dir)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    # finished stages are skipped when rerun; device, threads and dataset workers may differ
-    # from the first run's
+    # finished stages are skipped when rerun; device, threads, dataset workers and whether
+    # to record may differ from the first run's
     runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
                          runtime_keys=("device", "logger", "threads", "dataset_workers",
                                        "record"))
