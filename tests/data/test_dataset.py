@@ -11,7 +11,7 @@ import simdist.data.dataset as dataset_module
 from simdist.data import (DatasetConfig, collect_shards, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.experts import Expert
-from simdist.utils import load_memmap
+from simdist.utils import RunFolderError, load_memmap
 
 CFG = DatasetConfig(episodes=6, shard_episodes=2, episode_steps=12, dynamics_randomisation=True)
 
@@ -78,7 +78,7 @@ def test_killed_generation_resumes_without_duplicates_or_losses(tmp_path, expert
 
 
 def test_resume_with_a_different_config_is_refused(reference, experts):
-    with pytest.raises(ValueError, match="different config"):
+    with pytest.raises(RunFolderError, match="different config"):
         generate_dataset(DatasetConfig(episodes=6, shard_episodes=2, episode_steps=13),
                          reference, *experts, progress=False)
 

@@ -120,9 +120,11 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     assert again.returncode == 0, again.stderr
     # 10 stages per task-seed, 3 candidates for each of the 3 students, and the recording
     assert again.stdout.count("already done") == 20
-    with pytest.raises(ValueError, match="different config"):
-        _run_here("--preset", "tiny", "--output-dir", tmp_path, "--eval-episodes", 3,
-                  capsys=capsys)
+    refused = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--teacher-pixels",
+                        "always", "--eval-episodes", 3, capsys=capsys)
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert refused.stderr.startswith("twist_dmc.py: error: ")
+    assert "holds results of a different config (changed: ['eval_episodes'])" in refused.stderr
 
     # the gap-diagnosis script runs on a finished recipe output
     # (the second probe: the perception options, re-rendered extra and held-out images)

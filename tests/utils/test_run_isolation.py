@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from simdist.utils import StageRunner, run_jobs
+from simdist.utils import FolderInUseError, StageRunner, run_jobs
 
 # Importable by spawned workers (they get the parent's sys.path).
 HELPERS = '''
@@ -113,7 +113,7 @@ def test_a_second_run_into_the_same_folder_is_refused_until_the_first_dies(tmp_p
     """)
     try:
         assert first.stdout.readline().strip() == "locked", first.communicate()
-        with pytest.raises(RuntimeError, match=f"in use by another run \\(process {first.pid} ") \
+        with pytest.raises(FolderInUseError, match=f"in use by another run \\(process {first.pid} ") \
                 as info:
             StageRunner(out, {"seed": 0})
         assert str(out) in str(info.value)

@@ -38,6 +38,7 @@ from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 from simdist.envs import DynamicsRandomisation, make_env
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.memmap import CorruptDataError, folder_manifest, load_memmap
+from simdist.utils.stages import RunFolderError
 
 _DROP_NEXT = ("observation", "state", "pixels", "dynamics", "perturbation", "mixture", "is_init")
 
@@ -285,7 +286,7 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
     if meta_path.exists():
         meta = read_dataset_meta(out)
         if meta["config"] != config:
-            raise ValueError(f"{out} holds a dataset generated with a different config; "
+            raise RunFolderError(f"{out} holds a dataset generated with a different config; "
                              "use another directory or the same settings to resume")
         # Pre-allocated at full size by the first shard: sizes are checked, never extended.
         data = load_memmap(out / "data")

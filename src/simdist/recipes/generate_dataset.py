@@ -16,6 +16,7 @@ import simdist  # noqa: F401
 from simdist.data import DatasetConfig, generate_dataset
 from simdist.experts import Expert, resolve_expert
 from simdist.utils import load_checkpoint
+from simdist.utils.cli import exit_on_folder_errors
 
 
 def main(argv=None):
@@ -43,7 +44,8 @@ def main(argv=None):
     cfg = DatasetConfig(episodes=args.episodes, episode_steps=args.steps,
                         shard_episodes=args.shard_episodes, num_workers=args.workers,
                         pixels=args.pixels, seed=args.seed)
-    path = generate_dataset(cfg, args.out, expert, earlier, backend=args.backend)
+    with exit_on_folder_errors(parser.prog):  # another config's dataset in --out
+        path = generate_dataset(cfg, args.out, expert, earlier, backend=args.backend)
     meta = json.loads((path / "meta.json").read_text())
     print(f"{meta['transitions']} transitions, {meta['bytes'] / 1e6:.1f} MB, "
           f"{meta['seconds']:.0f} s of generation -> {path}")

@@ -54,9 +54,10 @@ from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomoti
 from simdist.pipelines.evaluate_agent import record_video
 from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
-from simdist.utils import (StageRunner, load_checkpoint, load_memmap, resolve_device,
-                           save_atomic, save_memmap, write_json_atomic)
-from simdist.utils.cli import check, check_builds, check_positive, parse_config
+from simdist.utils import (RunFolderError, StageRunner, load_checkpoint, load_memmap,
+                           resolve_device, save_atomic, save_memmap, write_json_atomic)
+from simdist.utils.cli import (check, check_builds, check_positive, exit_on_folder_errors,
+                               parse_config)
 from simdist.utils.precision import PRECISIONS, resolve_precision
 from simdist.utils.stages import ABSENT_MEANS, field_defaults, read_json
 from simdist.viz import record_planning_episode
@@ -804,7 +805,7 @@ def run(cfg: Config) -> dict:
                              lambda d: expert_zero_shot_stage(cfg, expert["path"]))
     missing = [t for t in cfg.expert_targets if t not in expert_zero_shot]
     if missing:  # e.g. a record copied in from a run with other targets
-        raise ValueError(f"{out / 'stages' / 'expert_zero_shot.json'} has no result for "
+        raise RunFolderError(f"{out / 'stages' / 'expert_zero_shot.json'} has no result for "
                          f"{missing} (it holds {sorted(expert_zero_shot)}); delete it to "
                          "re-evaluate the expert on every target of this config")
     dataset = stage("dataset", lambda d: dataset_stage(cfg, expert["path"], d))
@@ -879,7 +880,8 @@ def main(argv=None):
         raise SystemExit(f"simdist_quadruped.py: error: expert: no checkpoint at {cfg.expert}: "
                          "train one with `python recipes/train_expert.py` or pass "
                          "--retrain-expert")
-    return run_seeds(cfg) if cfg.seeds else run(cfg)
+    with exit_on_folder_errors("simdist_quadruped.py"):
+        return run_seeds(cfg) if cfg.seeds else run(cfg)
 
 
 def collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds) -> dict:

@@ -65,7 +65,8 @@ from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
 from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_jobs,
                            write_json_atomic)
-from simdist.utils.cli import check, check_builds, check_positive, parse_config
+from simdist.utils.cli import (check, check_builds, check_positive, exit_on_folder_errors,
+                               parse_config)
 from simdist.viz.student_view import record_student_episode
 
 TWIST = "TWIST (student)"
@@ -943,7 +944,8 @@ def main(argv=None):
     cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
                           prog="twist_dmc.py")
     out = Path(cfg.output_dir)
-    runner = stage_runner(cfg)  # refuses a different config before any work starts
+    with exit_on_folder_errors("twist_dmc.py"):  # another config's folder: before any work
+        runner = stage_runner(cfg)
 
     # Teachers first (everything of TWIST waits for them), then each teacher's students,
     # which start as soon as their teacher is done, ahead of the baselines still queued.

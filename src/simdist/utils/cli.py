@@ -14,14 +14,17 @@ an ``error:`` line naming the field, before a recipe writes or computes anything
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
 import sys
-from typing import Any, Mapping, Sequence, TypeVar
+from typing import Any, Iterator, Mapping, Sequence, TypeVar
 
 # imported here, not lazily: tyro's import hashes every builtin, and a doctest's `_` can
 # hold an unhashable tuple by then
 import tyro
+
+from simdist.utils.stages import FolderInUseError, RunFolderError
 
 T = TypeVar("T")
 
@@ -119,3 +122,26 @@ def parse_config(config_type: type[T], presets: Mapping[str, Mapping[str, Any]],
               f"{usage}: error: {error}", file=sys.stderr)
         raise SystemExit(2) from error
     return config, known.preset
+
+
+@contextlib.contextmanager
+def exit_on_folder_errors(prog: str) -> Iterator[None]:
+    """Ends the program with ``<prog>: error: <message>`` and exit status 2 (as argparse
+    does for a bad flag) when the output folder cannot be used: it holds another config's
+    results (:class:`~simdist.utils.stages.RunFolderError`) or another run holds it
+    (:class:`~simdist.utils.stages.FolderInUseError`). Both are the user's choice of
+    folder, not a failure of the program, so no traceback.
+
+    Examples:
+        >>> from simdist.utils.stages import RunFolderError
+        >>> with exit_on_folder_errors("demo.py"):
+        ...     raise RunFolderError("out holds results of a different config")
+        Traceback (most recent call last):
+        ...
+        SystemExit: 2
+    """
+    try:
+        yield
+    except (RunFolderError, FolderInUseError) as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        raise SystemExit(2) from error

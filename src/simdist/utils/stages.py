@@ -24,6 +24,17 @@ from simdist.utils.checkpoint import CorruptFileError, recovery_hint
 LOCATION_KEYS = ("output_dir", "out_dir", "outputs", "output")
 
 
+class RunFolderError(ValueError):
+    """An output folder holds results this run must not use: another config's stages or
+    dataset, or a stage record that lacks what this config needs (the message names the
+    folder or file and how to proceed). Recipes turn it into an ``error:`` line and exit
+    status 2, as for a bad flag."""
+
+
+class FolderInUseError(RuntimeError):
+    """Another live run holds the output folder's lock (the message names its pid)."""
+
+
 def read_json(path: str | os.PathLike, what: str = "file", recovery: str | None = None) -> Any:
     """``json.loads`` of a file, failing with the file's name and how to recover.
 
@@ -52,17 +63,19 @@ class StageRunner:
     written atomically only after ``fn`` returns, so a stage killed midway reruns (and can
     resume from whatever it checkpointed in its ``stage_dir``). The recipe config is saved
     as ``<out>/config.json``; rerunning into the same directory with a different config
-    raises instead of mixing results. ``runtime_keys`` name settings that change where or
-    how fast the work runs but not its results (e.g. ``device``): they are saved, not
-    compared, so a run started on one device can be resumed on another. ``location_keys``
-    (default :data:`LOCATION_KEYS`, e.g. ``output_dir``) are not compared either: a run's
-    identity is what it computes, not how its folder is spelled.
+    raises :class:`RunFolderError` instead of mixing results. ``runtime_keys`` name
+    settings that change where or how fast the work runs but not its results (e.g.
+    ``device``): they are saved, not compared, so a run started on one device can be
+    resumed on another. ``location_keys`` (default :data:`LOCATION_KEYS`, e.g.
+    ``output_dir``) are not compared either: a run's identity is what it computes, not how
+    its folder is spelled.
 
     One run at a time: the runner holds an exclusive ``flock`` on ``<out>/.lock`` (with
     the holder's pid inside) for as long as it lives, and a second run into the same
-    folder fails at once, naming the folder and that pid. The kernel drops the lock when
-    the holding process exits or is killed, so a crashed run never blocks its rerun.
-    Runners of the same process share the lock, as do the workers of :func:`run_jobs`.
+    folder fails at once with :class:`FolderInUseError`, naming the folder and that pid.
+    The kernel drops the lock when the holding process exits or is killed, so a crashed
+    run never blocks its rerun. Runners of the same process share the lock, as do the
+    workers of :func:`run_jobs`.
 
     Examples:
         >>> import tempfile
@@ -105,7 +118,7 @@ class StageRunner:
             changed = sorted(k for k in set(previous) | set(config)
                              if previous.get(k) != config.get(k) and k not in ignored)
             if changed:
-                raise ValueError(f"{self.out} holds results of a different config (changed: "
+                raise RunFolderError(f"{self.out} holds results of a different config (changed: "
                                  f"{changed}); use another --output-dir or the same settings")
         else:
             write_json_atomic(saved, config, default=str)
@@ -185,7 +198,7 @@ def _acquire_lock(out: Path) -> str:
             holder = os.read(fd, 64).decode(errors="replace").strip()
             os.close(fd)
             who = f"process {holder}" if holder.isdigit() else "another process"
-            raise RuntimeError(
+            raise FolderInUseError(
                 f"output folder {str(out)!r} is in use by another run ({who} holds "
                 f"{str(path)!r}); wait for it to finish, stop it, or use another "
                 "--output-dir") from None
