@@ -9,7 +9,10 @@ dm_control already depends on, rather than from hand-written resampling code.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+
+from simdist.utils.lazy import lazy_import
+
+stats = lazy_import("scipy.stats")  # ~1 s to import: loaded when a table is first made
 
 
 def summarise(values, confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> dict:

@@ -11,9 +11,11 @@ import os
 
 import mujoco
 import numpy as np
-import rerun as rr
 
 from simdist.utils.atomic import temp_path_beside
+from simdist.utils.lazy import lazy_import
+
+rr = lazy_import("rerun")  # ~0.6 s to import: loaded when a recording starts
 
 
 class PlanningRecorder:

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import os
 
-import rerun as rr
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from simdist.modules.rssm import RSSMState
 from simdist.utils.atomic import temp_path_beside
 from simdist.utils.device import module_device
+from simdist.utils.lazy import lazy_import
+
+rr = lazy_import("rerun")  # ~0.6 s to import: loaded when a recording starts
 
 
 @torch.no_grad()
