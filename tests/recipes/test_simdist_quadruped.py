@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from simdist.utils.precision import resolve_precision
+from simdist.utils.records import copy_records
 from tests.in_process import run_script
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -95,6 +96,31 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     assert refused.stderr.startswith("simdist_quadruped.py: error: ")
     assert "holds results of a different config (changed: ['episodes'])" in refused.stderr
     assert "Traceback" not in refused.stderr
+    # The run's records alone (`python -m simdist.utils.records`: config and stage JSONs, no
+    # weights, no data) rebuild its tables; a stage that needs the weights is refused by name.
+    records = tmp_path.parent / f"{tmp_path.name}_records"
+    copied = copy_records(tmp_path, records)
+    assert copied and all(p.suffix == ".json" for p in copied)
+    weights = tmp_path / "stages" / "pretrain" / "world_model.pt"
+    weights.rename(weights.with_suffix(".hidden"))  # as on a machine without the run's files
+    try:
+        rebuilt = _run_here("--preset", "tiny", "--expert", tiny_expert, "--output-dir",
+                            records, capsys=capsys)
+        assert rebuilt.returncode == 0, rebuilt.stderr
+        assert rebuilt.stdout.count("already done") == len(stages) + 2  # + probe, recordings
+        assert json.loads((records / "results.json").read_text())["curves"] == curves
+        (records / "stages" / "recordings.json").unlink()  # as if run with --no-record
+        refused = _run_here("--preset", "tiny", "--expert", tiny_expert, "--output-dir",
+                            records, capsys=capsys)
+        assert refused.returncode == 2 and "Traceback" not in refused.stderr
+        assert "holds the pretraining's record but not its weights" in refused.stderr
+        assert "['recordings'] need: pass --no-record" in refused.stderr
+        rebuilt = _run_here("--preset", "tiny", "--expert", tiny_expert, "--no-record",
+                            "--output-dir", records, capsys=capsys)
+        assert rebuilt.returncode == 0, rebuilt.stderr
+        assert json.loads((records / "results.json").read_text())["curves"] == curves
+    finally:
+        weights.with_suffix(".hidden").rename(weights)
     # A stage record that lacks a target of this config (e.g. copied from another run's
     # folder) is refused by name instead of failing with a KeyError at the end.
     record = tmp_path / "stages" / "expert_zero_shot.json"

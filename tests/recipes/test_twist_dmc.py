@@ -511,6 +511,33 @@ def test_no_baselines_runs_only_the_teacher_chain(teacher_chain_run):
     assert not list((out / "stages").glob("*sac*"))
 
 
+def test_a_runs_records_rebuild_its_table_and_take_more_seeds(tmp_path, teacher_chain_run,
+                                                               capsys):
+    """`python -m simdist.utils.records` keeps config and stage JSONs only: the recipe
+    rebuilds the table from them without any weights, and a later run with more seeds
+    into that folder (another day, another machine) adds its chains beside them."""
+    from simdist.utils.records import copy_records
+
+    copied = copy_records(teacher_chain_run, tmp_path)
+    assert copied and all(p.suffix == ".json" for p in copied)
+    assert not list(tmp_path.rglob("*.pt"))
+    original = json.loads((teacher_chain_run / "results.json").read_text())
+    rebuilt = _run_here(*TEACHER_CHAIN, "--output-dir", tmp_path, capsys=capsys)
+    assert rebuilt.returncode == 0, rebuilt.stderr
+    assert "stage cartpole-balance_s0_teacher: already done" in rebuilt.stdout
+    assert json.loads((tmp_path / "results.json").read_text())["results"] == original["results"]
+    # seeds (like tasks, students and baselines) pick rows: seed 1 joins seed 0's records
+    more = _run_here(*TEACHER_CHAIN, "--seeds", 0, 1, "--students", "twist", "--output-dir",
+                     tmp_path, capsys=capsys)
+    assert more.returncode == 0, more.stderr
+    assert "stage cartpole-balance_s0_twist: already done" in more.stdout
+    assert "stage cartpole-balance_s1_teacher: already done" not in more.stdout
+    task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
+    twist = original["results"]["cartpole-balance"]["TWIST (student)"]
+    assert len(task["TWIST (student)"]["seed_returns"]) == 2  # seeds 0 and 1, in that order
+    assert task["TWIST (student)"]["seed_returns"][0] == twist["seed_returns"][0]
+
+
 def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path, capsys):
     import pytest
 

@@ -819,6 +819,8 @@ def run(cfg: Config) -> dict:
              + ", ".join(f"{e:.2f}" for e in pretrained["heldout_prediction_copy_rel"]) + ")"
              if "heldout_prediction_copy_rel" in pretrained else ""))
 
+    check_weights_for_stages(cfg, runner, pretrained)
+
     def zero_shot(d):
         agent = planning_agent(cfg, pretrained)
         return {domain: evaluate_planner(cfg, agent, domain)[0]
@@ -854,6 +856,22 @@ def run(cfg: Config) -> dict:
         print("rerun recordings (open with `rerun FILE`) and videos: "
               + ", ".join(recordings.values()))
     return summary
+
+
+def check_weights_for_stages(cfg: Config, runner: StageRunner, pretrained: dict) -> None:
+    """Refuses, by name, a folder whose pretraining is a record without its weights (e.g.
+    a copy made by ``python -m simdist.utils.records``) when a stage still to run needs
+    them, instead of failing inside that stage."""
+    later = ["zero_shot", *(f"round_{k + 1}" for k in range(len(cfg.budgets_min)))]
+    to_run = [name for name in later + (["probe", "recordings"] if cfg.record else [])
+              if not runner.done(name)]
+    if not to_run or Path(pretrained["path"]).exists():
+        return
+    how = ("pass --no-record to rebuild the tables from the records alone"
+           if set(to_run) <= {"probe", "recordings"} else
+           "use another --output-dir, or delete its stages/pretrain.json to pretrain again")
+    raise RunFolderError(f"{runner.out} holds the pretraining's record but not its weights "
+                         f"({pretrained['path']}), which stages {to_run} need: {how}")
 
 
 def run_seeds(cfg: Config) -> dict:

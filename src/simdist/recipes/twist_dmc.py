@@ -862,8 +862,10 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 
 # -- the recipe -------------------------------------------------------------------------
 def stage_runner(cfg: Config) -> StageRunner:
-    return StageRunner(cfg.output_dir, cfg,
-                       runtime_keys=("device", "jobs", "logger", "baselines", "students"))
+    # tasks, seeds, students and baselines pick which chains run (rows of the table), not
+    # what a chain computes: a later run with more of them into the same folder adds them
+    return StageRunner(cfg.output_dir, cfg, runtime_keys=(
+        "device", "jobs", "logger", "baselines", "students", "tasks", "seeds"))
 
 
 def _stage(runner: StageRunner, name: str, fn) -> dict:

@@ -26,13 +26,31 @@ LOCATION_KEYS = ("output_dir", "out_dir", "outputs", "output")
 
 class RunFolderError(ValueError):
     """An output folder holds results this run must not use: another config's stages or
-    dataset, or a stage record that lacks what this config needs (the message names the
-    folder or file and how to proceed). Recipes turn it into an ``error:`` line and exit
-    status 2, as for a bad flag."""
+    dataset, or a stage record that lacks what this config needs.
+
+    The message names the folder or file and how to proceed. Recipes turn it into an
+    ``error:`` line and exit status 2, as for a bad flag
+    (:func:`simdist.utils.cli.exit_on_folder_errors`).
+
+    Examples:
+        >>> import tempfile
+        >>> out = tempfile.mkdtemp()
+        >>> StageRunner(out, {"episodes": 8}).close()
+        >>> try:
+        ...     StageRunner(out, {"episodes": 3})
+        ... except RunFolderError as err:
+        ...     print(str(err).split(" holds ")[1])
+        results of a different config (changed: ['episodes']); use another --output-dir or the same settings
+    """
 
 
 class FolderInUseError(RuntimeError):
-    """Another live run holds the output folder's lock (the message names its pid)."""
+    """Another live run holds the output folder's lock; the message names its pid.
+
+    Examples:
+        >>> str(FolderInUseError("output folder 'out' is in use by another run"))
+        "output folder 'out' is in use by another run"
+    """
 
 
 def read_json(path: str | os.PathLike, what: str = "file", recovery: str | None = None) -> Any:
