@@ -368,3 +368,18 @@ def test_bfloat16_planning_still_finds_the_optimum():
                                 None, action_dim=1, seed=0, config=cfg)
     out = _plan(planner, best.clone())
     torch.testing.assert_close(out["action"], best, atol=0.03, rtol=0)
+
+
+def test_bfloat16_planning_runs_the_terminal_value_in_float32():
+    # The value decides most of the ranking and bfloat16 rounds ~80 in steps of 0.5: the
+    # value head alone is outside autocast, its input the float32 latent.
+    torch.manual_seed(0)
+    wm = SimDistWorldModel.build(10, 3, size="tiny")
+    seen = {"value": [], "reward": []}
+    hooks = [wm.value_head.register_forward_hook(lambda m, i, o: seen["value"].append(o.dtype)),
+             wm.reward_head.register_forward_hook(lambda m, i, o: seen["reward"].append(o.dtype))]
+    cfg = PlannerConfig(horizon=3, num_samples=16, num_elites=4, iterations=2, precision="bfloat16")
+    _plan(LatentMPPIPlanner.from_world_model(wm, cfg, seed=0), torch.randn(2, wm.latent_dim))
+    assert set(seen["value"]) == {torch.float32} and set(seen["reward"]) == {torch.bfloat16}
+    for hook in hooks:
+        hook.remove()

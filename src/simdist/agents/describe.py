@@ -62,6 +62,8 @@ def describe_simdist_model(model: SimDistWorldModel) -> dict:
         desc["ignored_inputs"] = list(enc.ignored_inputs)
     if enc.action_dim:  # likewise; code that predates it refuses the file (shape mismatch)
         desc["previous_action"] = True
+    if model.dynamics.residual != "additive":  # likewise: files without it are additive
+        desc["dynamics_residual"] = model.dynamics.residual
     dynamics_hidden = int(_linears(model.dynamics.net)[0].out_features)
     if dynamics_hidden != desc["hidden"]:  # likewise: written only when it differs
         desc["dynamics_hidden"] = dynamics_hidden
@@ -76,7 +78,8 @@ def build_simdist_model(desc: dict) -> SimDistWorldModel:
         hidden=desc["hidden"], history=desc["history"], simnorm_groups=desc["simnorm_groups"],
         ignored_inputs=desc.get("ignored_inputs", ()),
         dynamics_hidden=desc.get("dynamics_hidden"),
-        previous_action=bool(desc.get("previous_action", False)))
+        previous_action=bool(desc.get("previous_action", False)),
+        dynamics_residual=desc.get("dynamics_residual", "additive"))
 
 
 def _describe_encoder(encoder: nn.Module) -> dict:

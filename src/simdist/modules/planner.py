@@ -73,8 +73,8 @@ class PlannerConfig:
     # that first action under the prior, undiluted by noise on steps that are re-planned.
     policy_noise_steps: int = 0
     # Arithmetic of the candidates' rollouts: "none" (float32) or "bfloat16" (the models
-    # run under torch.autocast: matmuls in bfloat16, scores accumulated and the MPPI
-    # update in float32). On CPU cores with AVX512-BF16 a call costs 2.6x less; on an H200
+    # run under torch.autocast: matmuls in bfloat16 but the terminal value head's, scores
+    # accumulated and the MPPI update in float32). On CPU cores with AVX512-BF16 a call costs 2.6x less; on an H200
     # only large sample counts gain; on AVX2-only cores it costs several times more
     # (benchmarks/README.md). "auto": bfloat16 where the device has native bfloat16
     # matmuls, else float32 (simdist.utils.precision). Outputs stay float32.
@@ -303,7 +303,15 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             rewards.append(r)
             total = total + (c.gamma ** t) * r
             z = self._dynamics(z, a)
-        value = self._value(z).reshape(B * n) if self._value is not None else torch.zeros_like(total)
+        if self._value is not None:
+            # The terminal value (~80 on the quadruped) decides most of the ranking, and
+            # bfloat16 rounds it in steps of 0.5, as wide as its spread over a state's
+            # candidates: under autocast the value head alone runs in float32 (one call per
+            # candidate against H of the dynamics and reward head).
+            with torch.autocast(z.device.type, enabled=False):
+                value = self._value(z.float()).reshape(B * n).to(total.dtype)
+        else:
+            value = torch.zeros_like(total)
         total = total + c.value_weight * (c.gamma ** H) * value
         return (torch.stack(actions, 1).reshape(B, n, H, -1), total.reshape(B, n),
                 torch.stack(rewards, -1).reshape(B, n, H), value.reshape(B, n))

@@ -26,26 +26,69 @@ SIMDIST_SIZES = {
 }
 
 
+DYNAMICS_RESIDUALS = ("additive", "logit")
+
+
 class MLPDynamics(nn.Module):
-    """Residual MLP transition ``z' = norm(z + f([z, a]))`` (swappable part).
+    """MLP transition on SimNorm latents (swappable part).
+
+    ``residual="additive"``: ``z' = norm(z + f([z, a]))``, the form every model before
+    2026-12-03 was trained with. Under SimNorm (a softmax per group) this is *not* an
+    identity residual: ``z`` is a probability vector, and ``f = 0`` gives ``softmax(z)``,
+    a blurred copy, so the MLP must rebuild the whole next latent each step (in effect
+    TD-MPC2's ``norm(f([z, a]))`` with ``z`` as an extra logit bias).
+
+    ``residual="logit"``: ``z' = norm(log z + f([z, a]))`` with ``f``'s last layer
+    zero-initialised: ``softmax(log z) = z`` within each group, so an untrained dynamics
+    predicts "no change" exactly and ``f`` learns the change, in the logits. Without
+    SimNorm (``simnorm_groups=None``) both forms are the plain residual ``z + f``.
 
     Examples:
         >>> dyn = MLPDynamics(latent_dim=16, action_dim=2, hidden=32, simnorm_groups=4)
         >>> dyn(torch.rand(5, 16), torch.zeros(5, 2)).shape
         torch.Size([5, 16])
+        >>> z = simnorm(torch.randn(5, 16), 4)
+        >>> logit = MLPDynamics(16, 2, hidden=32, simnorm_groups=4, residual="logit")
+        >>> torch.allclose(logit(z, torch.zeros(5, 2)), z, atol=1e-6)  # starts at no change
+        True
     """
 
     def __init__(self, latent_dim: int, action_dim: int, hidden: int = 256, layers: int = 2,
-                 simnorm_groups: int | None = 8):
+                 simnorm_groups: int | None = 8, residual: str = "additive"):
         super().__init__()
+        if residual not in DYNAMICS_RESIDUALS:
+            raise ValueError(f"unknown dynamics residual {residual!r}; valid: "
+                             f"{', '.join(DYNAMICS_RESIDUALS)}")
         self.latent_dim, self.action_dim, self.simnorm_groups = latent_dim, action_dim, simnorm_groups
+        self.residual = residual
         # SiLU rather than TD-MPC2's Mish: same smoothness, ~7x cheaper on CPU (32 vs 230 us
         # per [128, 256] activation here), and the planner evaluates this thousands of times.
         self.net = mlp(latent_dim + action_dim, latent_dim, hidden, layers, activation=nn.SiLU)
+        if residual == "logit":
+            last = [m for m in self.net.modules() if isinstance(m, nn.Linear)][-1]
+            nn.init.zeros_(last.weight)
+            nn.init.zeros_(last.bias)
+
+    def reset_parameters(self) -> None:
+        """Fresh weights, initialised as at construction (an ensemble's new member)."""
+        for module in self.net.modules():
+            if isinstance(module, nn.Linear):
+                module.reset_parameters()
+        if self.residual == "logit":
+            last = [m for m in self.net.modules() if isinstance(m, nn.Linear)][-1]
+            nn.init.zeros_(last.weight)
+            nn.init.zeros_(last.bias)
 
     def forward(self, latent: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        z = latent + self.net(torch.cat([latent, action], -1))
-        return simnorm(z, self.simnorm_groups) if self.simnorm_groups else z
+        change = self.net(torch.cat([latent, action], -1))
+        if not self.simnorm_groups:
+            return latent + change
+        if self.residual == "logit":
+            # SimNorm latents are strictly positive; the floor only guards log(0) after
+            # an underflowing softmax (exp(-16) is below anything a group of 8 carries).
+            base = torch.log(latent.float().clamp_min(1e-7))
+            return simnorm(base + change, self.simnorm_groups)
+        return simnorm(latent + change, self.simnorm_groups)
 
 
 class LatentModelVerbs:
@@ -120,7 +163,8 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
         ``overrides`` replace the size's entries (``latent_dim``, ``hidden``, ``history``,
         ``simnorm_groups``) or add ``ignored_inputs`` (encoder inputs zeroed),
         ``dynamics_hidden`` (the dynamics MLP's width; default ``hidden``: the one part
-        SimDist finetunes may be given more capacity than the frozen ones) and
+        SimDist finetunes may be given more capacity than the frozen ones),
+        ``dynamics_residual`` (:class:`MLPDynamics`' ``residual``, default ``"additive"``) and
         ``previous_action`` (``True``: the encoder reads the action sent one step before
         each observation of its window, see :class:`~simdist.modules.HistoryEncoder`).
         """
@@ -133,7 +177,8 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
             HistoryEncoder(obs_dim, s["history"], latent, hidden, simnorm_groups=groups,
                            ignored_inputs=s.get("ignored_inputs", ()),
                            action_dim=action_dim if s.get("previous_action") else 0),
-            dynamics or MLPDynamics(latent, action_dim, dynamics_hidden, simnorm_groups=groups),
+            dynamics or MLPDynamics(latent, action_dim, dynamics_hidden, simnorm_groups=groups,
+                                    residual=s.get("dynamics_residual") or "additive"),
             ScalarHead(latent + action_dim, hidden, activation=nn.SiLU),
             ScalarHead(latent, hidden, activation=nn.SiLU),
             PolicyPrior(latent, action_dim, hidden),
@@ -163,6 +208,9 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
     def fresh_dynamics(self) -> nn.Module:
         """A copy of this model's dynamics module with freshly initialised weights."""
         dynamics = copy.deepcopy(self.dynamics)
+        if isinstance(dynamics, MLPDynamics):  # its own initialisation (e.g. a zero last layer)
+            dynamics.reset_parameters()
+            return dynamics
         for module in dynamics.modules():
             if module is not dynamics and hasattr(module, "reset_parameters"):
                 module.reset_parameters()

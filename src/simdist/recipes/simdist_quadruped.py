@@ -48,6 +48,7 @@ from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, Worl
 from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_skill
 from simdist.modules.planner import PlannerConfig
+from simdist.modules.simdist_model import DYNAMICS_RESIDUALS
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
                                mean_metrics, progress_stats, rollout, stage_seed,
                                train_resumable)
@@ -140,6 +141,12 @@ class Config:
     # benchmarks/README.md, "The previous action as an encoder input". A folder from before
     # the field was made without it.
     model_previous_action: bool = field(default=True, metadata={ABSENT_MEANS: False})
+    # how the dynamics steps a SimNorm latent (MLPDynamics(residual=)): "additive" norm(z +
+    # f), every model until 2026-12-03, is not an identity residual under SimNorm (f = 0
+    # gives softmax(z), a blurred copy); "logit" norm(log z + f), f zero-initialised,
+    # starts at "no change" and learns the change. Measured in benchmarks/README.md, "A
+    # dynamics that starts at no change".
+    model_dynamics_residual: str = "additive"
     # precision of the world model's training updates: "none" (float32), "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision)
     # or "auto": bfloat16 where the device has native bfloat16 matmuls, float32 elsewhere
@@ -274,6 +281,9 @@ class Config:
                 check_builds(name, get_target, target)
         check(self.model_size in SIMDIST_SIZES, "model_size",
               f"unknown size {self.model_size!r}; valid: {sorted(SIMDIST_SIZES)}")
+        check(self.model_dynamics_residual in DYNAMICS_RESIDUALS, "model_dynamics_residual",
+              f"unknown residual {self.model_dynamics_residual!r}; valid: "
+              f"{list(DYNAMICS_RESIDUALS)}")
         for name in ("mixed_precision", "planner_precision"):
             check(getattr(self, name) in PRECISIONS, name,
                   f"unknown precision {getattr(self, name)!r}; valid: {list(PRECISIONS)}")
@@ -460,6 +470,7 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int 
         overrides["ignored_inputs"] = ignored_inputs(cfg)
     if cfg.model_previous_action:
         overrides["previous_action"] = True
+    overrides["dynamics_residual"] = cfg.model_dynamics_residual
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
