@@ -234,6 +234,23 @@ def test_model_dynamics_hidden_and_latent_dim_resize_the_model_and_survive_save_
     assert wider.world_model.encoder.simnorm_groups == 3  # groups of 8
 
 
+def test_model_dynamics_residual_reaches_the_dynamics_and_a_mismatched_pretraining_is_refused(
+        tmp_path):
+    from simdist.recipes.simdist_quadruped import Config, load_agent, new_agent
+    from simdist.utils import RunFolderError
+    logit = Config(model_size="tiny", model_dynamics_residual="logit")
+    assert new_agent(logit, obs_dim=10, action_dim=3).world_model.dynamics.residual == "logit"
+    assert Config().model_dynamics_residual == "additive"  # the default until measured
+    weights = new_agent(Config(model_size="tiny"), 10, 3).world_model.state_dict()
+    torch.save(weights, tmp_path / "w.pt")
+    # a pretraining record from before the field (no "dynamics_residual") was additive:
+    # loading its weights as "logit" would step wrongly with the same shapes
+    record = {"path": str(tmp_path / "w.pt"), "obs_dim": 10, "action_dim": 3}
+    with pytest.raises(RunFolderError, match="trained with --model-dynamics-residual additive"):
+        load_agent(logit, record)
+    assert load_agent(Config(model_size="tiny"), record).world_model.dynamics.residual == "additive"
+
+
 def test_ignored_observation_groups_reach_the_encoder():
     from simdist.recipes.simdist_quadruped import Config, new_agent, observation_layout
     layout = observation_layout("quadruped-terrain")

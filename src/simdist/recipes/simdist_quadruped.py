@@ -543,6 +543,7 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
     skill = heldout_prediction_skill(cfg, agent, expert_path)
     return {"path": members[0], "members": members, "agent": agent_file,
             "obs_dim": obs.shape[-1], "action_dim": data["action"].shape[-1],
+            "dynamics_residual": cfg.model_dynamics_residual,
             "first": first, "last": last,
             "term_shares_first": term_shares(first), "term_shares_last": term_shares(last),
             "heldout_prediction_error_rel": skill["model"],
@@ -565,6 +566,14 @@ def load_finished_run(run: str | Path, **overrides) -> tuple[Config, dict]:
 
 
 def load_agent(cfg: Config, pretrained: dict, path: str | None = None) -> SimDistAgent:
+    # The two residual forms have the same weights' shapes: a pretraining record copied
+    # into a folder of the other form would load without complaint and step wrongly.
+    trained = pretrained.get("dynamics_residual", "additive")  # records from before it
+    if trained != cfg.model_dynamics_residual:
+        raise RunFolderError(
+            f"the pretrained dynamics ({pretrained['path']}) was trained with "
+            f"--model-dynamics-residual {trained}, this run's config says "
+            f"{cfg.model_dynamics_residual}: use the setting the weights were trained with")
     agent = new_agent(cfg, pretrained["obs_dim"], pretrained["action_dim"])
     agent.world_model.load_state_dict(load_checkpoint(path or pretrained["path"]))
     return agent
