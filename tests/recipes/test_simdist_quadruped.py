@@ -251,6 +251,38 @@ def test_model_dynamics_residual_reaches_the_dynamics_and_a_mismatched_pretraini
     assert load_agent(Config(model_size="tiny"), record).world_model.dynamics.residual == "additive"
 
 
+def test_model_prior_bounds_give_the_prior_the_envs_joint_box_and_survive_save_and_load(
+        tmp_path):
+    from simdist.agents import SimDistAgent
+    from simdist.recipes.simdist_quadruped import Config, load_agent, new_agent
+    from simdist.utils import RunFolderError
+    cfg = Config(model_size="tiny", model_prior_bounds=True)
+    agent = new_agent(cfg, obs_dim=10, action_dim=12)
+    prior = agent.world_model.policy_head
+    # the quadruped's per-joint bounds: [-1, 1] yaw, [-1, 1.1] lift, [-0.8, 0.8] extend
+    assert prior.action_high.max().item() == pytest.approx(1.1)
+    assert prior.action_low.max().item() == pytest.approx(-0.8)
+    last = prior.net[-1]
+    with torch.no_grad():  # saturate the tanh both ways
+        last.weight.zero_()
+        last.bias.fill_(20.0)
+        top = prior(torch.randn(4, agent.world_model.latent_dim))
+        last.bias.fill_(-20.0)
+        bottom = prior(torch.randn(4, agent.world_model.latent_dim))
+    torch.testing.assert_close(top, prior.action_high.expand(4, -1))
+    torch.testing.assert_close(bottom, prior.action_low.expand(4, -1))
+    agent.save(tmp_path / "agent.pt", optimisers=False)
+    loaded = SimDistAgent.load(tmp_path / "agent.pt").world_model.policy_head
+    assert torch.equal(loaded.action_high, prior.action_high)
+    assert new_agent(Config(model_size="tiny"), 10, 12).world_model.policy_head.action_low is None
+    torch.save(agent.world_model.state_dict(), tmp_path / "w.pt")
+    record = {"path": str(tmp_path / "w.pt"), "obs_dim": 10, "action_dim": 12,
+              "prior_bounds": True}
+    with pytest.raises(RunFolderError, match="--model-prior-bounds"):
+        load_agent(Config(model_size="tiny"), record)
+    assert load_agent(cfg, record).world_model.policy_head.action_low is not None
+
+
 def test_ignored_observation_groups_reach_the_encoder():
     from simdist.recipes.simdist_quadruped import Config, new_agent, observation_layout
     layout = observation_layout("quadruped-terrain")

@@ -62,6 +62,9 @@ def describe_simdist_model(model: SimDistWorldModel) -> dict:
         desc["ignored_inputs"] = list(enc.ignored_inputs)
     if enc.action_dim:  # likewise; code that predates it refuses the file (shape mismatch)
         desc["previous_action"] = True
+    prior = model.policy_head
+    if getattr(prior, "action_low", None) is not None:  # likewise: files without it: [-1, 1]
+        desc["prior_bounds"] = [prior.action_low.tolist(), prior.action_high.tolist()]
     if model.dynamics.residual != "additive":  # likewise: files without it are additive
         desc["dynamics_residual"] = model.dynamics.residual
     dynamics_hidden = int(_linears(model.dynamics.net)[0].out_features)
@@ -79,7 +82,8 @@ def build_simdist_model(desc: dict) -> SimDistWorldModel:
         ignored_inputs=desc.get("ignored_inputs", ()),
         dynamics_hidden=desc.get("dynamics_hidden"),
         previous_action=bool(desc.get("previous_action", False)),
-        dynamics_residual=desc.get("dynamics_residual", "additive"))
+        dynamics_residual=desc.get("dynamics_residual", "additive"),
+        prior_bounds=desc.get("prior_bounds"))
 
 
 def _describe_encoder(encoder: nn.Module) -> dict:

@@ -106,18 +106,46 @@ class Actor(nn.Module):
 
 
 class PolicyPrior(nn.Module):
-    """SimDist's policy head: a deterministic action in [-1, 1] from a latent (BC-trained).
+    """SimDist's policy head: a deterministic action from a latent (BC-trained).
+
+    Outputs ``tanh`` in [-1, 1], or, given ``action_low`` / ``action_high`` (``[A]``
+    each, e.g. an env's per-joint bounds), the ``tanh`` mapped affinely onto that box:
+    a robot whose joints allow more than 1 (the quadruped's lift joints: up to 1.1) gets
+    a prior that can reach what the expert executed there.
 
     Examples:
         >>> PolicyPrior(16, action_dim=3, hidden=8)(torch.zeros(2, 16)).shape
         torch.Size([2, 3])
+        >>> box = PolicyPrior(16, 2, hidden=8, action_low=[-1.0, -0.8], action_high=[1.1, 0.8])
+        >>> _ = [p.data.zero_() for p in box.net[-1].parameters()]  # tanh(0) = 0
+        >>> box(torch.zeros(1, 16))  # the box's centre
+        tensor([[0.0500, 0.0000]], grad_fn=<AddBackward0>)
     """
 
     def __init__(self, latent_dim: int, action_dim: int, hidden: int = 256, layers: int = 2,
-                 activation: type[nn.Module] = nn.SiLU):
+                 activation: type[nn.Module] = nn.SiLU, action_low=None, action_high=None):
         super().__init__()
         self.action_dim = action_dim
         self.net = mlp(latent_dim, action_dim, hidden, layers, activation)
+        if (action_low is None) != (action_high is None):
+            raise ValueError("PolicyPrior: give both action_low and action_high, or neither")
+        if action_low is not None:
+            low = torch.as_tensor(action_low, dtype=torch.float32).reshape(-1)
+            high = torch.as_tensor(action_high, dtype=torch.float32).reshape(-1)
+            if low.shape != (action_dim,) or high.shape != (action_dim,):
+                raise ValueError(f"PolicyPrior: action bounds must have {action_dim} entries, "
+                                 f"got {tuple(low.shape)} and {tuple(high.shape)}")
+            if not (torch.isfinite(low).all() and torch.isfinite(high).all()
+                    and (low < high).all()):
+                raise ValueError(f"PolicyPrior: action bounds must be finite with low < high, "
+                                 f"got {low.tolist()} and {high.tolist()}")
+            self.register_buffer("action_low", low)
+            self.register_buffer("action_high", high)
+        else:
+            self.action_low = self.action_high = None
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
-        return torch.tanh(self.net(latent))
+        action = torch.tanh(self.net(latent))
+        if self.action_low is None:
+            return action
+        return self.action_low + (self.action_high - self.action_low) * (action + 1) / 2

@@ -164,7 +164,9 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
         ``simnorm_groups``) or add ``ignored_inputs`` (encoder inputs zeroed),
         ``dynamics_hidden`` (the dynamics MLP's width; default ``hidden``: the one part
         SimDist finetunes may be given more capacity than the frozen ones),
-        ``dynamics_residual`` (:class:`MLPDynamics`' ``residual``, default ``"additive"``) and
+        ``dynamics_residual`` (:class:`MLPDynamics`' ``residual``, default ``"additive"``),
+        ``prior_bounds`` (``(low, high)``: the policy prior's output box, see
+        :class:`~simdist.modules.PolicyPrior`; default [-1, 1]) and
         ``previous_action`` (``True``: the encoder reads the action sent one step before
         each observation of its window, see :class:`~simdist.modules.HistoryEncoder`).
         """
@@ -181,7 +183,8 @@ class SimDistWorldModel(LatentModelVerbs, nn.Module):
                                     residual=s.get("dynamics_residual") or "additive"),
             ScalarHead(latent + action_dim, hidden, activation=nn.SiLU),
             ScalarHead(latent, hidden, activation=nn.SiLU),
-            PolicyPrior(latent, action_dim, hidden),
+            PolicyPrior(latent, action_dim, hidden,
+                        **dict(zip(("action_low", "action_high"), s.get("prior_bounds") or ()))),
         )
 
     def parts(self) -> dict[str, nn.Module]:

@@ -37,7 +37,7 @@ import torch
 from tensordict import TensorDict
 from tqdm import tqdm
 
-from simdist.agents import SimDistAgent, SimDistConfig
+from simdist.agents import SimDistAgent, SimDistConfig, action_bounds
 from simdist.data import (DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.data.dataset import read_dataset_meta
@@ -147,6 +147,11 @@ class Config:
     # starts at "no change" and learns the change. Measured in benchmarks/README.md, "A
     # dynamics that starts at no change".
     model_dynamics_residual: str = "additive"
+    # the policy prior's output box: False, tanh in [-1, 1] (every model until 2026-12-03);
+    # True, the data task's per-joint action bounds (PolicyPrior(action_low=, action_high=)):
+    # the quadruped's lift joints allow up to 1.1 and the expert's unperturbed actions
+    # exceed 1.0 there on 7-13% of steps, which a [-1, 1] prior cannot imitate.
+    model_prior_bounds: bool = False
     # precision of the world model's training updates: "none" (float32), "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision)
     # or "auto": bfloat16 where the device has native bfloat16 matmuls, float32 elsewhere
@@ -471,6 +476,10 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int 
     if cfg.model_previous_action:
         overrides["previous_action"] = True
     overrides["dynamics_residual"] = cfg.model_dynamics_residual
+    if cfg.model_prior_bounds:
+        env = make_env(cfg.data_task)
+        overrides["prior_bounds"] = action_bounds(env.action_spec)
+        env.close()
     wm = SimDistWorldModel.build(obs_dim, action_dim, size=cfg.model_size, **overrides)
     return SimDistAgent(wm, SimDistConfig(size=cfg.model_size, horizon=cfg.model_horizon,
                                           finetune_lr=cfg.finetune_lr,
@@ -544,6 +553,7 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
     return {"path": members[0], "members": members, "agent": agent_file,
             "obs_dim": obs.shape[-1], "action_dim": data["action"].shape[-1],
             "dynamics_residual": cfg.model_dynamics_residual,
+            "prior_bounds": cfg.model_prior_bounds,
             "first": first, "last": last,
             "term_shares_first": term_shares(first), "term_shares_last": term_shares(last),
             "heldout_prediction_error_rel": skill["model"],
@@ -574,6 +584,13 @@ def load_agent(cfg: Config, pretrained: dict, path: str | None = None) -> SimDis
             f"the pretrained dynamics ({pretrained['path']}) was trained with "
             f"--model-dynamics-residual {trained}, this run's config says "
             f"{cfg.model_dynamics_residual}: use the setting the weights were trained with")
+    bounded = pretrained.get("prior_bounds", False)
+    if bounded != cfg.model_prior_bounds:
+        raise RunFolderError(
+            f"the pretrained policy prior ({pretrained['path']}) was trained with"
+            f"{'' if bounded else ' --no-model-prior-bounds'}"
+            f"{' --model-prior-bounds' if bounded else ''}, this run's config says "
+            f"otherwise: use the setting the weights were trained with")
     agent = new_agent(cfg, pretrained["obs_dim"], pretrained["action_dim"])
     agent.world_model.load_state_dict(load_checkpoint(path or pretrained["path"]))
     return agent
