@@ -83,3 +83,20 @@ def test_simulator_planner_keeps_the_window_of_an_encoder_that_reads_previous_ac
     with pytest.raises(KeyError, match="previous action"):
         policy(TensorDict({"observation": obs[:, 0], "is_init": torch.ones(2, 1, dtype=torch.bool)},
                           [2]))
+
+
+def test_a_copy_keeps_the_worlds_task_options():
+    # a world built with its own incline: a copy built from the speeds alone would be flat
+    env = make_env("quadruped-flat", num_envs=1, seed=5, task_kwargs={"slope_deg": 7.0})
+    env.reset()
+    dynamics = SimulatorDynamics(env.sims, history=2, obs_dim=89)
+    dynamics.sync()
+    world, copy = env.sims[0], dynamics.copies[0]
+    assert copy.task.slope_deg == world.task.slope_deg == 7.0
+    floor = world.task._idx["floor"]
+    assert (copy.physics.model.geom_quat[floor] == world.physics.model.geom_quat[floor]).all()
+    z = dynamics.latent(torch.zeros(1, 2, 89))
+    actions = torch.rand(1, 12) * 2 - 1
+    predicted = dynamics.history_of(dynamics(z, actions.double()))[:, -1]
+    real = env.step(TensorDict({"action": actions}, [1]))["next", "observation"]
+    assert torch.equal(predicted, real)

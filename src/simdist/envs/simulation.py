@@ -63,7 +63,8 @@ class Simulation:
             raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         self.pixels, self.image_size = pixels, int(image_size)
         self.camera_id = spec.camera_id if camera_id is None else int(camera_id)
-        kwargs = {**spec.defaults, **(task_kwargs or {})}
+        self.task_kwargs = dict(task_kwargs or {})  # so a scratch copy can be built alike
+        kwargs = {**spec.defaults, **self.task_kwargs}
         self.physics, self.task, self.n_sub_steps = spec.build(target, seed, **kwargs)
         n_cameras = self.physics.model.ncam
         if pixels and not -1 <= self.camera_id < n_cameras:  # -1: MuJoCo's free camera

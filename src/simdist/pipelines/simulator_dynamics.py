@@ -63,7 +63,7 @@ class SimulatorDynamics:
         self.worlds, self.history, self.obs_dim = worlds, history, obs_dim
         self.action_dim, self.step_width = action_dim, obs_dim + action_dim
         self.copies = [Simulation(w.spec, w.target, None, None, False, 8, None, 0,
-                                  {"speeds": w.task.speeds}, w.max_episode_steps)
+                                  w.task_kwargs, w.max_episode_steps)
                        for w in worlds]
         self.state_size = mujoco.mj_stateSize(first.physics.model.ptr, _STATE)
         self.row = {"observation": np.zeros(obs_dim), "state": np.zeros(first.state_layout.size),
