@@ -52,6 +52,11 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     summary = results["summary"]["cartpole-balance"]
     assert summary["Oracle (state teacher)"]["normalised"] == 1.0
     run = results["runs"]["cartpole-balance_s0"]
+    # the no-DR pixel Dreamer is also scored where it trained (its own scene), same worlds
+    own = run["Dreamer from pixels, no DR"]["own_scene"]
+    assert len(own["returns"]) == 2 and all(0 <= r <= 20 for r in own["returns"])
+    assert "no DR on its own training scene" in proc.stdout
+    assert "own_scene" not in run["Dreamer from pixels + DR"]
     assert run["teacher"]["updates"] == 2 * 2  # 40 steps = 2 episodes x (20 / 10) updates
     # the teacher's dataset D holds state and randomised pixels of the same steps
     episode = tmp_path / "stages" / "cartpole-balance_s0_teacher" / "episodes" / "00000"

@@ -809,8 +809,12 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
     agent.save(stage_dir / "dreamer_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
-    result = evaluate(cfg, task, seed, agent.policy(explore=False), agent.make_primer(),
-                      pixels=True)
+    policy = agent.policy(explore=False)
+    result = evaluate(cfg, task, seed, policy, agent.make_primer(), pixels=True)
+    if visual is None:  # also where it trained (dm_control's scene): did it learn at all?
+        result["own_scene"] = evaluate_returns(
+            task, policy, agent.make_primer(), seed + 10_000, cfg.eval_episodes,
+            cfg.eval_steps, True, None, camera_id=cfg.camera_id)
     return {**result, "agent": str(stage_dir / "dreamer_agent.pt"),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
@@ -1004,6 +1008,12 @@ def main(argv=None):
             cfg, task, seed, teacher, out))
     wall = time.perf_counter() - start
     print("\n" + format_table(results))
+    for key, runs in records.items():  # the no-DR baseline on held-out scenes says little
+        own = runs.get(PIXEL_DREAMERS["dreamer_no_dr"][0], {}).get("own_scene")
+        if own:  # absent from stages run before it was measured
+            print(f"{key}: {PIXEL_DREAMERS['dreamer_no_dr'][0]} on its own training scene "
+                  f"{own['mean']:.1f} +- {own['std']:.1f} (held-out scenes: "
+                  f"{runs[PIXEL_DREAMERS['dreamer_no_dr'][0]]['mean']:.1f})")
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     print(f"wall time this run: {wall:.0f} s with {cfg.jobs} process(es)")
     write_json_atomic(out / "results.json",  # a crash mid-write keeps the previous file
