@@ -97,7 +97,11 @@ class Actor(nn.Module):
     def distribution(self, features: torch.Tensor) -> TanhNormal:
         mean, raw_std = self.net(features).chunk(2, -1)
         std = nn.functional.softplus(raw_std + self._init_bias.to(raw_std)) + self.min_std
-        return TanhNormal(mean, std, upscale=5.0)
+        # The pre-tanh mean is unbounded: TorchRL's ``upscale`` only acts with
+        # ``tanh_loc=True``, so it was never DreamerV1's ``5 * tanh(mean / 5)``. Every
+        # figure so far was measured this way; a saturated actor explores only through
+        # the collector's noise.
+        return TanhNormal(mean, std)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         """Deterministic action (the distribution's mode)."""
