@@ -479,9 +479,11 @@ def load_teacher(cfg: Config, task: str, teacher: dict) -> DreamerAgent:
     return agent
 
 
-def evaluate(cfg: Config, task: str, seed: int, policy, primer, pixels: bool) -> dict:
-    """Held-out scenes (textures never seen in training), the same seeds for all methods."""
-    visual = VisualRandomisation.heldout_evaluation() if pixels else None
+def evaluate(cfg: Config, task: str, seed: int, policy, primer, pixels: bool,
+             own_scene: bool = False) -> dict:
+    """Held-out scenes (textures never seen in training), the same seeds for all methods;
+    ``own_scene``: dm_control's own scene instead (where a no-DR baseline trained)."""
+    visual = VisualRandomisation.heldout_evaluation() if pixels and not own_scene else None
     return evaluate_returns(task, policy, primer, seed + 10_000, cfg.eval_episodes,
                             cfg.eval_steps, pixels, visual, camera_id=cfg.camera_id)
 
@@ -812,9 +814,8 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
     policy = agent.policy(explore=False)
     result = evaluate(cfg, task, seed, policy, agent.make_primer(), pixels=True)
     if visual is None:  # also where it trained (dm_control's scene): did it learn at all?
-        result["own_scene"] = evaluate_returns(
-            task, policy, agent.make_primer(), seed + 10_000, cfg.eval_episodes,
-            cfg.eval_steps, True, None, camera_id=cfg.camera_id)
+        result["own_scene"] = evaluate(cfg, task, seed, policy, agent.make_primer(),
+                                       pixels=True, own_scene=True)
     return {**result, "agent": str(stage_dir / "dreamer_agent.pt"),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}
@@ -1008,12 +1009,12 @@ def main(argv=None):
             cfg, task, seed, teacher, out))
     wall = time.perf_counter() - start
     print("\n" + format_table(results))
+    no_dr = PIXEL_DREAMERS["dreamer_no_dr"][0]
     for key, runs in records.items():  # the no-DR baseline on held-out scenes says little
-        own = runs.get(PIXEL_DREAMERS["dreamer_no_dr"][0], {}).get("own_scene")
+        own = runs.get(no_dr, {}).get("own_scene")
         if own:  # absent from stages run before it was measured
-            print(f"{key}: {PIXEL_DREAMERS['dreamer_no_dr'][0]} on its own training scene "
-                  f"{own['mean']:.1f} +- {own['std']:.1f} (held-out scenes: "
-                  f"{runs[PIXEL_DREAMERS['dreamer_no_dr'][0]]['mean']:.1f})")
+            print(f"{key}: {no_dr} on its own training scene {own['mean']:.1f} +- "
+                  f"{own['std']:.1f} (held-out scenes: {runs[no_dr]['mean']:.1f})")
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     print(f"wall time this run: {wall:.0f} s with {cfg.jobs} process(es)")
     write_json_atomic(out / "results.json",  # a crash mid-write keeps the previous file
