@@ -1,8 +1,11 @@
 """The records kept in results/ still rebuild their README tables with today's code."""
 
+import importlib.util
 import json
 import shutil
 from pathlib import Path
+
+import pytest
 
 from tests.in_process import run_script
 
@@ -25,3 +28,30 @@ def test_twist_cheetah_run_records_rebuild_without_training(tmp_path, capsys):
     twist = rebuilt["summary"]["cheetah-run"]["TWIST (student)"]
     assert round(100 * twist["normalised"]) == 86  # the README's figure
     assert (out / "returns.png").stat().st_size > 0
+
+
+def _compare_runs():
+    spec = importlib.util.spec_from_file_location("compare_runs",
+                                                  ROOT / "benchmarks" / "compare_runs.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.main
+
+
+def test_compare_runs_pairs_the_residual_records_by_episode(capsys):
+    main = _compare_runs()
+    logit = ROOT / "results" / "simdist_residual_logit_3seeds_2026-12-03"
+    additive = ROOT / "results" / "simdist_residual_additive_3seeds_2026-12-03"
+    main(["--run", str(logit), "--against", str(additive), "--names", "logit", "additive"])
+    rows = capsys.readouterr().out.splitlines()
+    # README Results: logit minus additive +19 / +19 / +23 points at 0 / 2 / 8 minutes
+    assert rows[-1].split()[:4] == ["additive", "+19", "[", "+10,"]
+    assert "+23 [  +14,   +32]" in rows[-1]
+
+
+def test_compare_runs_refuses_runs_of_other_worlds():
+    main = _compare_runs()
+    logit = ROOT / "results" / "simdist_residual_logit_3seeds_2026-12-03"
+    one_seed = ROOT / "results" / "simdist_residual_additive_3seeds_2026-12-03" / "seed_0"
+    with pytest.raises(SystemExit, match="not the same worlds"):
+        main(["--run", str(logit), "--against", str(one_seed)])

@@ -240,15 +240,16 @@ def test_model_dynamics_residual_reaches_the_dynamics_and_a_mismatched_pretraini
     from simdist.utils import RunFolderError
     logit = Config(model_size="tiny", model_dynamics_residual="logit")
     assert new_agent(logit, obs_dim=10, action_dim=3).world_model.dynamics.residual == "logit"
-    assert Config().model_dynamics_residual == "additive"  # the default until measured
-    weights = new_agent(Config(model_size="tiny"), 10, 3).world_model.state_dict()
+    assert Config().model_dynamics_residual == "logit"  # the default since 2026-12-03
+    additive = Config(model_size="tiny", model_dynamics_residual="additive")
+    weights = new_agent(additive, 10, 3).world_model.state_dict()
     torch.save(weights, tmp_path / "w.pt")
     # a pretraining record from before the field (no "dynamics_residual") was additive:
     # loading its weights as "logit" would step wrongly with the same shapes
     record = {"path": str(tmp_path / "w.pt"), "obs_dim": 10, "action_dim": 3}
     with pytest.raises(RunFolderError, match="trained with --model-dynamics-residual additive"):
         load_agent(logit, record)
-    assert load_agent(Config(model_size="tiny"), record).world_model.dynamics.residual == "additive"
+    assert load_agent(additive, record).world_model.dynamics.residual == "additive"
 
 
 def test_model_prior_bounds_give_the_prior_the_envs_joint_box_and_survive_save_and_load(

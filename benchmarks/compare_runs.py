@@ -1,0 +1,78 @@
+"""Two finished SimDist recipe runs compared episode by episode on the same worlds.
+
+The recipe pairs its own methods by episode; this pairs one method across two runs, e.g.
+two settings of a flag trained on the same expert, dataset and evaluation worlds (a
+seed's worlds depend only on the seed and target). Each run is a recipe output folder:
+one seed's, or a multi-seed folder after ``--seeds`` (the pairing is then stratified by
+seed). It prints both runs' rows of the method, the first run minus the second at every
+budget (mean [bootstrap 95% CI of the per-episode differences]) and the first run's own
+gain over its zero-shot point; it refuses runs whose episodes are not the same worlds
+(different episode counts, seeds or commanded speeds).
+
+    python benchmarks/compare_runs.py --run results/simdist_residual_logit_3seeds_2026-12-03 \\
+        --against results/simdist_residual_additive_3seeds_2026-12-03 --names logit additive
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from simdist.pipelines.report import format_paired_differences, format_table
+
+SIMDIST = "SimDist: finetune dynamics"
+
+
+def paired_curves(first: dict, second: dict, method: str, names: tuple[str, str]) -> dict:
+    """A results dict holding ``method``'s points of two runs under ``names``.
+
+    Examples:
+        >>> p = lambda f: {"fraction": f, "progress_m": f, "mean_m": 0.0, "std_m": 0.0,
+        ...                "mean_fraction": sum(f) / len(f), "std_fraction": 0.0}
+        >>> a = {"minutes": [0.0, 8.0], "m": [p([0.1, 0.3]), p([0.5, 0.7])]}
+        >>> b = {"minutes": [0.0, 8.0], "m": [p([0.1, 0.1]), p([0.2, 0.4])]}
+        >>> sorted(paired_curves(a, b, "m", ("A", "B")))
+        ['A', 'B', 'minutes']
+    """
+    for curves in (first, second):
+        if method not in curves:
+            raise SystemExit(f"no method {method!r} in a run; it has "
+                             f"{[k for k in curves if k not in ('minutes', 'planner_in_sim')]}")
+    if first["minutes"] != second["minutes"]:
+        raise SystemExit(f"the runs' budgets differ: {first['minutes']} vs {second['minutes']}")
+    return {"minutes": first["minutes"], names[0]: first[method], names[1]: second[method]}
+
+
+def read_run(run: Path) -> dict:
+    path = run / "results.json"
+    if not path.exists():
+        raise SystemExit(f"no results.json in {run}: is the run finished?")
+    return json.loads(path.read_text())
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", required=True, type=Path, help="the first run's folder")
+    parser.add_argument("--against", required=True, type=Path, help="the second run's folder")
+    parser.add_argument("--method", default=SIMDIST, help="the method to pair (a row name)")
+    parser.add_argument("--names", nargs=2, default=("first", "second"),
+                        help="labels of the two runs in the tables")
+    args = parser.parse_args(argv)
+    first, second = read_run(args.run), read_run(args.against)
+    targets = {first["config"]["target"], second["config"]["target"]}
+    if len(targets) != 1:
+        raise SystemExit(f"the runs deployed in different targets: {sorted(targets)}")
+    target = targets.pop()
+    curves = paired_curves(first["curves"], second["curves"], args.method, tuple(args.names))
+    print(format_table(curves, target))
+    paired = format_paired_differences(curves, target, args.names[0])
+    if paired is None:
+        raise SystemExit("the runs' episodes are not the same worlds (episode counts or "
+                         "commanded speeds differ): they cannot be paired")
+    print("\n" + paired)
+
+
+if __name__ == "__main__":
+    main()
