@@ -7,7 +7,7 @@ one seed's, or a multi-seed folder after ``--seeds`` (the pairing is then strati
 seed). It prints both runs' rows of the method, the first run minus the second at every
 budget (mean [bootstrap 95% CI of the per-episode differences]) and the first run's own
 gain over its zero-shot point; it refuses runs whose episodes are not the same worlds
-(different episode counts, seeds or commanded speeds).
+(other seeds or targets, different episode counts or commanded speeds).
 
     python benchmarks/compare_runs.py --run results/simdist_residual_logit_3seeds_2026-12-03 \\
         --against results/simdist_residual_additive_3seeds_2026-12-03 --names logit additive
@@ -61,6 +61,10 @@ def main(argv=None):
                         help="labels of the two runs in the tables")
     args = parser.parse_args(argv)
     first, second = read_run(args.run), read_run(args.against)
+    seeds = [run["config"].get("seeds") or [run["config"]["seed"]] for run in (first, second)]
+    if seeds[0] != seeds[1]:
+        raise SystemExit(f"the runs hold other seeds ({seeds[0]} vs {seeds[1]}): their "
+                         "episodes are not the same worlds")
     targets = {first["config"]["target"], second["config"]["target"]}
     if len(targets) != 1:
         raise SystemExit(f"the runs deployed in different targets: {sorted(targets)}")

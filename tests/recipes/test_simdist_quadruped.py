@@ -278,7 +278,7 @@ def test_model_prior_bounds_give_the_prior_the_envs_joint_box_and_survive_save_a
     assert new_agent(Config(model_size="tiny"), 10, 12).world_model.policy_head.action_low is None
     torch.save(agent.world_model.state_dict(), tmp_path / "w.pt")
     record = {"path": str(tmp_path / "w.pt"), "obs_dim": 10, "action_dim": 12,
-              "prior_bounds": True}
+              "prior_bounds": True, "dynamics_residual": cfg.model_dynamics_residual}
     with pytest.raises(RunFolderError, match="--model-prior-bounds"):
         load_agent(Config(model_size="tiny"), record)
     assert load_agent(cfg, record).world_model.policy_head.action_low is not None
