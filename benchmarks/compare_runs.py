@@ -20,8 +20,7 @@ import json
 from pathlib import Path
 
 from simdist.pipelines.report import format_paired_differences, format_table
-
-SIMDIST = "SimDist: finetune dynamics"
+from simdist.recipes.simdist_quadruped import SIMDIST
 
 
 def paired_curves(first: dict, second: dict, method: str, names: tuple[str, str]) -> dict:
