@@ -27,9 +27,8 @@ import numpy as np
 from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
 from simdist.pipelines.report import format_by_command
+from simdist.recipes.simdist_quadruped import UPSIDE_DOWN  # the recipe's own threshold
 from simdist.utils import load_memmap
-
-UPSIDE_DOWN = -0.5  # gravity's z in the body frame: 1 upright, -1 on its back
 
 
 def with_commands(point: dict, episode_s: float) -> dict:

@@ -475,3 +475,37 @@ def test_a_run_killed_inside_a_stage_resumes_to_the_uninterrupted_results(
         wa = torch.load(full / "stages" / "round_2" / name, weights_only=True)
         wb = torch.load(killed / "stages" / "round_2" / name, weights_only=True)
         assert all(torch.equal(wa[k], wb[k]) for k in wa), name
+
+
+@pytest.mark.parametrize("reset", [True, False])
+def test_collecting_with_reset_upside_down_starts_a_fallen_world_again(reset, monkeypatch):
+    from simdist.recipes import simdist_quadruped as recipe
+    cfg = recipe.Config(model_size="tiny", model_latent_dim=0, episode_steps=12, slice_len=8,
+                        model_horizon=3, collect_episodes=2, planner_horizon=3, planner_samples=16,
+                        planner_iterations=1, planner_elites=4, planner_precision="none",
+                        collect_reset_upside_down=reset, expert_targets=["sim"])
+    agent = recipe.new_agent(cfg, obs_dim=89, action_dim=12)
+    envs, make_env, make_policy = [], recipe.locomotion_env, agent.policy
+    monkeypatch.setattr(recipe, "locomotion_env",
+                        lambda *a, **k: envs.append(make_env(*a, **k)) or envs[-1])
+
+    def flipping_policy(*args, **kwargs):  # turns world 1 onto its back before step 5
+        policy, calls = make_policy(*args, **kwargs), []
+
+        def act(td):
+            calls.append(None)
+            if len(calls) == 5:
+                physics = envs[-1].base_env.sims[1].physics
+                physics.data.qpos[3:7] = [0.0, 1.0, 0.0, 0.0]
+                physics.forward()
+            return policy(td)
+        return act
+
+    monkeypatch.setattr(agent, "policy", flipping_policy)
+    data = recipe.collect_target_data(cfg, agent, steps=24, seed=0)
+    assert data.shape == (2, 12)
+    starts = data["is_init"][1, :, 0].nonzero().flatten().tolist()
+    assert starts == ([0, 5] if reset else [0])
+    assert data["next", "terminated"][1, 4].item() is reset
+    assert not data["is_init"][0, 1:].any()  # the upright world runs on
+    assert recipe.Config().collect_reset_upside_down is False  # off by default

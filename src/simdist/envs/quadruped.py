@@ -94,6 +94,11 @@ class QuadrupedLocomotion(base.Task):
         slope_range_deg: ``(low, high)``: draw the incline per episode instead,
             uniformly in the range (negative is downhill); ``None`` keeps ``slope_deg``.
             The floor is a plane, so its tilt is edited in the compiled model in place.
+        upside_down_termination: end the episode in a terminal state once the body's
+            vertical axis makes a cosine below this with the world's (the body-frame
+            gravity reading's z; -0.5: tilted 120 degrees, on its back), as a person
+            sets a fallen robot back on its feet when recording real data. ``None``
+            (the default): episodes run to their step limit, as dm_control's.
         random: seed or ``numpy.random.RandomState``.
 
     Examples:
@@ -106,7 +111,8 @@ class QuadrupedLocomotion(base.Task):
     """
 
     def __init__(self, speeds=(0.25, 0.5, 0.75), slope_deg: float = 0.0,
-                 slope_range_deg: tuple | None = None, random=None):
+                 slope_range_deg: tuple | None = None,
+                 upside_down_termination: float | None = None, random=None):
         speeds = tuple(float(s) for s in speeds)
         if not speeds or not all(np.isfinite(s) and s > 0 for s in speeds):
             raise ValueError(f"speeds must be a non-empty list of positive, finite m/s, "
@@ -119,6 +125,10 @@ class QuadrupedLocomotion(base.Task):
                                  f"got {slope_range_deg}")
             slope_range_deg = (low, high)
         self.slope_range_deg = slope_range_deg
+        if upside_down_termination is not None and not -1 < upside_down_termination < 1:
+            raise ValueError(f"upside_down_termination must be a cosine in (-1, 1) or None, "
+                             f"got {upside_down_termination}")
+        self.upside_down_termination = upside_down_termination
         self._set_slope(float(slope_deg))
         self.command = self.speeds[0]
         self._start = np.zeros(3)
@@ -199,6 +209,15 @@ class QuadrupedLocomotion(base.Task):
         low, high = 0.9 * self.command, 1.1 * self.command
         gap = max(low - v, v - high, 0.0) / self.command
         return upright * float(np.exp(-0.5 * (gap * _GAUSS_SCALE) ** 2))
+
+    def get_termination(self, physics):
+        """0 (a terminal state, dm_control's convention) once the robot is upside down by
+        ``upside_down_termination``; ``None`` (go on) otherwise."""
+        if self.upside_down_termination is None:
+            return None
+        # xmat's last row is the world's vertical in the body frame (the gravity reading)
+        up = physics.data.ptr.xmat[self._idx["torso"], 8]
+        return 0.0 if up < self.upside_down_termination else None
 
     def observation_layout(self, physics) -> Layout:
         n_hinge = len(self._idx["qpos"])

@@ -69,7 +69,8 @@ def _suite_builder(domain: str, task: str):
 
 def _quadruped_builder(default_slope: float, default_range: tuple | None = None):
     def build(target: TargetDomain, seed, speeds=(0.25, 0.5, 0.75), slope_deg=default_slope,
-              slope_range_deg=default_range, texture_size: int = 64):
+              slope_range_deg=default_range, upside_down_termination=None,
+              texture_size: int = 64):
         # A target's slope is its fixed geometry: it replaces any per-episode range.
         if target.slope_deg:
             slope, slope_range_deg = target.slope_deg, None
@@ -78,7 +79,9 @@ def _quadruped_builder(default_slope: float, default_range: tuple | None = None)
         xml, assets = quadruped.make_model(slope, texture_size=texture_size)
         physics = quadruped.dmc_quadruped.Physics.from_xml_string(xml, assets)
         task = quadruped.QuadrupedLocomotion(speeds=speeds, slope_deg=slope,
-                                             slope_range_deg=slope_range_deg, random=seed)
+                                             slope_range_deg=slope_range_deg,
+                                             upside_down_termination=upside_down_termination,
+                                             random=seed)
         n_sub_steps = int(round(quadruped.CONTROL_TIMESTEP / physics.timestep()))
         return physics, task, n_sub_steps
     return build

@@ -20,10 +20,18 @@ from simdist.pipelines.statistics import summarise
 
 
 def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), task="quadruped-flat",
-                   speeds=(0.25, 0.5, 0.75)):
-    """A batched quadruped env (one world per episode) with ``InitTracker`` and primers."""
+                   speeds=(0.25, 0.5, 0.75), upside_down_termination: float | None = None):
+    """A batched quadruped env (one world per episode) with ``InitTracker`` and primers.
+
+    With ``upside_down_termination`` (see :class:`~simdist.envs.quadruped.QuadrupedLocomotion`)
+    a world that rolls onto its back ends its episode and starts a new one within the
+    same ``steps`` (its row of a :func:`rollout` then holds several episodes).
+    """
+    kwargs = {"speeds": tuple(speeds)}
+    if upside_down_termination is not None:
+        kwargs["upside_down_termination"] = upside_down_termination
     env = TransformedEnv(make_env(task, target=target, num_envs=episodes, seed=seed,
-                                  max_episode_steps=steps, task_kwargs={"speeds": tuple(speeds)}),
+                                  max_episode_steps=steps, task_kwargs=kwargs),
                          InitTracker())
     for primer in primers:
         env.append_transform(primer)
@@ -67,7 +75,13 @@ def progress_stats(td: TensorDict, command_index: int) -> dict:
 
 
 def as_slices(td: TensorDict, slice_len: int, batch_slices: int) -> TensorDictReplayBuffer:
-    """An in-memory buffer of ``[episodes, steps]`` data that samples episode-safe slices."""
+    """An in-memory buffer of ``[episodes, steps]`` data that samples episode-safe slices.
+
+    A slice never spans two rows. A row may hold several episodes (a world reset inside
+    the rollout, ``is_init`` set after its first step): a slice can then cross an episode
+    start, and the SimDist losses drop every prediction across it
+    (:func:`~simdist.objectives.simdist_pretrain.rollout_windows`).
+    """
     episodes, steps = td.shape
     data = td.clone()
     data.set("episode", torch.arange(episodes)[:, None].expand(episodes, steps).clone())
