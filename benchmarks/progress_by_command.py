@@ -23,6 +23,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
@@ -79,19 +80,33 @@ def upside_down_steps(observation, task: str):
 
 
 def flips_by_command(td, task: str) -> str:
-    """Per commanded speed: episodes, how many rolled onto their back, mean reward."""
+    """Per commanded speed: episodes, steps, how many episodes rolled onto their back, mean
+    reward per step. A row that holds several episodes (collected with
+    ``--collect-reset-upside-down``: a world on its back starts a new episode, with a newly
+    drawn command) counts each of them."""
     obs = td["observation"]
-    command = obs[:, 0, observation_layout(task)["command"].start].double().round(decimals=6)
-    upside_down = upside_down_steps(obs, task).any(1)
-    reward = td["next", "reward"][..., 0].mean(1)
-    lines = ["| speed (m/s) | episodes | rolled onto their back | mean reward per step |",
-             "| --- | --- | --- | --- |"]
-    for speed in sorted(set(command.tolist())):
-        chosen = command == speed
-        lines.append(f"| {speed:g} | {int(chosen.sum())} | {int(upside_down[chosen].sum())} | "
-                     f"{float(reward[chosen].mean()):.2f} |")
+    rows, steps = obs.shape[:2]
+    starts = td["is_init"].reshape(rows, steps).clone()
+    starts[:, 0] = True
+    episode = (starts.reshape(-1).long().cumsum(0) - 1)  # one id per episode
+    layout = observation_layout(task)
+    command = obs.reshape(rows * steps, -1)[:, layout["command"].start].double()
+    first = starts.reshape(-1).nonzero().squeeze(-1)
+    episode_command = command[first].round(decimals=6)
+    count = len(first)
+    rolled = torch.zeros(count, dtype=torch.bool).index_put_(
+        (episode,), upside_down_steps(obs, task).reshape(-1), accumulate=True)
+    length = torch.bincount(episode, minlength=count)
+    reward = torch.zeros(count, dtype=torch.float64).index_add_(
+        0, episode, td["next", "reward"].reshape(-1).double())
+    lines = ["| speed (m/s) | episodes | steps | rolled onto their back | mean reward per step |",
+             "| --- | --- | --- | --- | --- |"]
+    for speed in sorted(set(episode_command.tolist())):
+        chosen = episode_command == speed
+        lines.append(f"| {speed:g} | {int(chosen.sum())} | {int(length[chosen].sum())} | "
+                     f"{int(rolled[chosen].sum())} | "
+                     f"{float(reward[chosen].sum() / length[chosen].sum()):.2f} |")
     return "\n".join(lines)
-
 
 if __name__ == "__main__":
     main()

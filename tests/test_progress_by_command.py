@@ -1,0 +1,39 @@
+"""benchmarks/progress_by_command.py's count of rolled-over target episodes per command."""
+
+import importlib.util
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location(
+        "progress_by_command", ROOT / "benchmarks" / "progress_by_command.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_rows_holding_several_episodes_count_each_with_its_own_command():
+    module = _module()
+    layout = module.observation_layout("quadruped-flat")
+    command, up = layout["command"].start, layout["gravity"].start + 2
+    obs = torch.zeros(2, 10, layout.size)
+    obs[..., up] = 1.0
+    obs[0, :, command] = 0.25  # row 0: one slow episode, upright throughout
+    obs[1, :4, command] = 0.25  # row 1: a slow episode that ends on its back at step 3...
+    obs[1, 3, up] = -0.9
+    obs[1, 4:, command] = 0.75  # ...and a fast one that the reset started at step 4
+    is_init = torch.zeros(2, 10, 1, dtype=torch.bool)
+    is_init[:, 0] = is_init[1, 4] = True
+    reward = torch.zeros(2, 10, 1)
+    reward[0] = 0.5
+    reward[1, 4:] = 0.9
+    td = TensorDict({"observation": obs, "is_init": is_init,
+                     ("next", "reward"): reward}, [2, 10])
+    table = module.flips_by_command(td, "quadruped-flat").splitlines()
+    # slow: 2 episodes, 14 steps, 1 on its back, reward 5.0 / 14; fast: 1, 6 steps, 0, 0.9
+    assert table[2:] == ["| 0.25 | 2 | 14 | 1 | 0.36 |", "| 0.75 | 1 | 6 | 0 | 0.90 |"]
