@@ -27,8 +27,8 @@ import torch
 
 from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
+from simdist.pipelines.locomotion import UPSIDE_DOWN
 from simdist.pipelines.report import format_by_command
-from simdist.recipes.simdist_quadruped import UPSIDE_DOWN  # the recipe's own threshold
 from simdist.utils import load_memmap
 
 

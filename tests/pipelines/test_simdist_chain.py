@@ -40,3 +40,16 @@ def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
         agent.finetune_update(finetune_data.sample().reshape(-1, 5))
     assert all(torch.equal(v, frozen[k]) for k, v in agent.world_model.state_dict().items()
                if not k.startswith("dynamics"))
+
+
+def test_progress_stats_mark_the_episodes_that_had_the_robot_on_its_back():
+    env = locomotion_env(get_target("sim"), episodes=3, steps=4, seed=0)
+    layout = env.base_env.observation_layout
+    td = env.rollout(4, lambda t: t.set("action", torch.zeros(3, 12)), break_when_any_done=False)
+    env.close()
+    gravity_z = layout["gravity"].start + 2
+    td["observation"][1, 2, gravity_z] = -0.6  # on its back at one step
+    td["observation"][2, 3, gravity_z] = -0.4  # tilted, not past the threshold
+    stats = progress_stats(td, layout["command"].start, gravity_z)
+    assert stats["upside_down"] == [False, True, False]
+    assert "upside_down" not in progress_stats(td, layout["command"].start)

@@ -18,6 +18,8 @@ from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
 from simdist.pipelines.statistics import summarise
 
+UPSIDE_DOWN = -0.5  # body-frame gravity z (1 upright): below it the robot is on its back
+
 
 def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), task="quadruped-flat",
                    speeds=(0.25, 0.5, 0.75), upside_down_termination: float | None = None):
@@ -55,19 +57,25 @@ def rollout(env, policy, steps: int, desc: str | None = None) -> TensorDict:
             bar.close()
 
 
-def progress_stats(td: TensorDict, command_index: int) -> dict:
+def progress_stats(td: TensorDict, command_index: int, gravity_z_index: int | None = None
+                   ) -> dict:
     """Forward progress per episode (m) and as a fraction of the commanded distance, with
     the fraction's mean, std, IQM and bootstrap 95% CI of the mean over episodes, and each
     episode's commanded speed (``command_mps``: the fraction's mean can hide one speed
-    that fails, see :func:`~simdist.pipelines.report.format_by_command`)."""
+    that fails, see :func:`~simdist.pipelines.report.format_by_command`). Given the
+    observation index of the body-frame gravity's z, also whether each episode had the
+    robot on its back at some step (``upside_down``, below :data:`UPSIDE_DOWN`)."""
     progress = td["next", "forward_progress"][:, -1, 0]
     command = td["observation"][:, 0, command_index]
     distance = command * td.shape[1] * CONTROL_TIMESTEP
     fraction = (progress / distance).numpy()
     metres = progress.numpy()
     summary = summarise(fraction)
+    flips = ({} if gravity_z_index is None else
+             {"upside_down": (td["observation"][..., gravity_z_index] < UPSIDE_DOWN)
+              .any(1).tolist()})
     return {"progress_m": metres.tolist(), "fraction": fraction.tolist(),
-            "command_mps": command.tolist(),
+            "command_mps": command.tolist(), **flips,
             "mean_m": float(np.mean(metres)), "std_m": float(np.std(metres)),
             "mean_fraction": summary["mean"], "std_fraction": summary["std"],
             "iqm_fraction": summary["iqm"], "ci_fraction": [summary["ci_low"], summary["ci_high"]],

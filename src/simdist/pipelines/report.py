@@ -217,6 +217,38 @@ def format_paired_differences(results: dict, target: str, reference: str) -> str
     return "\n".join(lines)
 
 
+def format_upside_down(results: dict, target: str) -> str | None:
+    """Evaluation episodes that had the robot on its back at some step, per commanded
+    speed: one row per method and budget. ``None`` when some point lacks the per-episode
+    ``upside_down`` or ``command_mps`` (records written before they were kept).
+
+    A roll is the failure no later step repairs, so a method's mean fraction of the
+    commanded distance can hide whether it fails by walking slowly or by falling over.
+
+    Examples:
+        >>> p = {"fraction": [0.5, -0.2, 0.0], "command_mps": [0.5, 0.25, 0.25],
+        ...      "upside_down": [False, True, False]}
+        >>> print(format_upside_down({"minutes": [0.0], "m": [p]}, "ice"))  # doctest: +NORMALIZE_WHITESPACE
+        Episodes on their back at some step in ice, by commanded speed (on their back / episodes)
+        method    target data   0.25 m/s    0.5 m/s
+        m            0.00 min        1/2        0/1
+    """
+    rows = _rows(results)
+    if not rows or any("upside_down" not in r or "command_mps" not in r for _, _, r in rows):
+        return None
+    speeds = sorted({round(c, 6) for _, _, r in rows for c in r["command_mps"]})
+    lines = [f"Episodes on their back at some step in {target}, by commanded speed (on their "
+             "back / episodes)",
+             f"{'method':33s} {'target data':>12s}" + "".join(f" {f'{v:g} m/s':>10s}" for v in speeds)]
+    for name, minutes, r in rows:
+        flipped = np.asarray(r["upside_down"], dtype=bool)
+        command = np.round(np.asarray(r["command_mps"], dtype=np.float64), 6)
+        cells = [f"{int(flipped[command == v].sum())}/{int((command == v).sum())}"
+                 for v in speeds]
+        lines.append(f"{name:33s} {_budget_cell(minutes)}" + "".join(f" {c:>10s}" for c in cells))
+    return "\n".join(lines)
+
+
 def print_table(results: dict, target: str, reference: str | None = None) -> None:
     """Prints the results table, its split by commanded speed, the tracking table and,
     given ``reference`` (a method's name), that method's paired differences."""
@@ -224,6 +256,9 @@ def print_table(results: dict, target: str, reference: str | None = None) -> Non
     by_command = format_by_command(results, target)
     if by_command is not None:
         print("\n" + by_command)
+    upside_down = format_upside_down(results, target)
+    if upside_down is not None:
+        print("\n" + upside_down)
     print("\n" + format_tracking_error(results, target))
     paired = format_paired_differences(results, target, reference) if reference else None
     if paired is not None:
@@ -267,8 +302,8 @@ def _aggregate_point(points: list[dict]) -> dict:
     metres = np.concatenate([np.asarray(p["progress_m"], dtype=np.float64) for p in points])
     s = summarise_groups(fractions)
     # the per-episode speeds travel with the fractions when every seed recorded them
-    commands = ({"command_mps": [c for p in points for c in p["command_mps"]]}
-                if all("command_mps" in p for p in points) else {})
+    commands = {key: [c for p in points for c in p[key]]
+                for key in ("command_mps", "upside_down") if all(key in p for p in points)}
     return {"fraction": [f for p in points for f in p["fraction"]], "progress_m": metres.tolist(),
             **commands, "mean_m": float(metres.mean()), "std_m": float(metres.std()),
             "mean_fraction": s["mean"], "std_fraction": s["std"], "iqm_fraction": s["iqm"],

@@ -54,6 +54,7 @@ from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomoti
                                train_resumable)
 from simdist.pipelines.evaluate_agent import record_video
 from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
+from simdist.pipelines.locomotion import UPSIDE_DOWN
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (RunFolderError, StageRunner, load_checkpoint, load_memmap,
                            resolve_device, save_atomic, save_memmap, write_json_atomic)
@@ -65,7 +66,6 @@ from simdist.viz import record_planning_episode
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
 STEPS_PER_MINUTE = 50 * 60  # 50 Hz control
-UPSIDE_DOWN = -0.5  # body-frame gravity z (1 upright): below it the robot is on its back
 SIMDIST = "SimDist: finetune dynamics"  # the method the paired table compares against
 SIMNORM_GROUP = 8  # latent dimensions per SimNorm group when --model-latent-dim resizes it
 TARGET_KEYS = ["observation", "action", "is_init", ("next", "observation"),
@@ -409,9 +409,9 @@ def evaluate(cfg: Config, target: str, policy, primers=(), seed_offset: int = 10
     """
     env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
                          cfg.seed + seed_offset, primers=primers, task=cfg.task)
-    command = env.base_env.observation_layout["command"].start
+    layout = env.base_env.observation_layout
     stats = progress_stats(rollout(env, policy, cfg.episode_steps, desc=f"evaluate in {target}"),
-                           command)
+                           layout["command"].start, layout["gravity"].start + 2)
     env.close()
     return stats
 
@@ -633,7 +633,8 @@ def evaluate_planner(cfg: Config, agent: SimDistAgent, target: str,
     spec = env.action_spec
     policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
     td = rollout(env, policy, cfg.episode_steps, desc=f"evaluate planner in {target}")
-    stats = progress_stats(td, env.base_env.observation_layout["command"].start)
+    layout = env.base_env.observation_layout
+    stats = progress_stats(td, layout["command"].start, layout["gravity"].start + 2)
     env.close()
     return stats, td
 
