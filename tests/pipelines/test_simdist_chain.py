@@ -45,7 +45,11 @@ def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
 def test_progress_stats_mark_the_episodes_that_had_the_robot_on_its_back():
     env = locomotion_env(get_target("sim"), episodes=3, steps=4, seed=0)
     layout = env.base_env.observation_layout
-    td = env.rollout(4, lambda t: t.set("action", torch.zeros(3, 12)), break_when_any_done=False)
+
+    def still(td):
+        return td.set("action", torch.zeros(3, 12))
+
+    td = env.rollout(4, still, break_when_any_done=False)
     env.close()
     gravity_z = layout["gravity"].start + 2
     td["observation"][1, 2, gravity_z] = -0.6  # on its back at one step
