@@ -64,6 +64,9 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     # every point keeps its episodes' commanded speeds, and the table by speed is printed
     assert all(len(r["command_mps"]) == 2 for m in methods for r in curves[m])
     assert "by commanded speed" in proc.stdout
+    # and whether each evaluation episode had the robot on its back, printed by speed
+    assert all(len(r["upside_down"]) == 2 for m in methods for r in curves[m])
+    assert "Episodes on their back at some step in slippery_slope" in proc.stdout
     # every method is evaluated on the same worlds, so SimDist's paired differences print
     assert "Paired by episode in slippery_slope: SimDist: finetune dynamics minus" in proc.stdout
     # Finetuning touched only the dynamics: every other tensor equals the pretrained one.
