@@ -210,7 +210,7 @@ def describe_priorities(slices: PrioritisedSlices, data, cfg, when: str) -> None
 
     probability = slices.probabilities()
     top = probability.sort(descending=True).values[:max(1, len(slices) // 10)].sum()
-    upside_down = upside_down_steps(data["observation"], cfg.task).float()       # [E, T]
+    upside_down = upside_down_steps(data["next", "observation"], cfg.task).float()  # [E, T]
     windows = upside_down.unfold(1, slices.slice_len, 1).amax(-1).reshape(-1).bool()
     print(f"priorities {when}: top 10% of slices draw {100 * top:.0f}%; slices with a step "
           f"upside down are {100 * windows.float().mean():.0f}% of the slices and draw "
@@ -225,6 +225,10 @@ def slices_until_rollover(data, cfg, keep_after: int) -> TensorDictReplayBuffer:
     from progress_by_command import upside_down_steps  # a sibling script (benchmarks/)
 
     episodes, steps = data.shape
+    if data["is_init"][:, 1:].any():
+        raise SystemExit("--keep-after-rollover needs one episode per row; these data were "
+                         "collected with --collect-reset-upside-down (nothing follows a "
+                         "rollover there)")
     upside_down = upside_down_steps(data["observation"], cfg.task)          # [episodes, steps]
     first = torch.where(upside_down.any(1), upside_down.float().argmax(1), steps)
     keep = torch.arange(steps)[None] < (first + keep_after).clamp(max=steps)[:, None]

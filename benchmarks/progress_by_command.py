@@ -94,8 +94,11 @@ def flips_by_command(td, task: str) -> str:
     first = starts.reshape(-1).nonzero().squeeze(-1)
     episode_command = command[first].round(decimals=6)
     count = len(first)
+    # step t's reading after it (next observation) belongs to step t's episode; the
+    # observation of the step after a reset is already the new episode's upright start
+    flipped = upside_down_steps(td["next", "observation"], task) | upside_down_steps(obs, task)
     rolled = torch.zeros(count, dtype=torch.bool).index_put_(
-        (episode,), upside_down_steps(obs, task).reshape(-1), accumulate=True)
+        (episode,), flipped.reshape(-1), accumulate=True)
     length = torch.bincount(episode, minlength=count)
     reward = torch.zeros(count, dtype=torch.float64).index_add_(
         0, episode, td["next", "reward"].reshape(-1).double())
@@ -107,6 +110,7 @@ def flips_by_command(td, task: str) -> str:
                      f"{int(rolled[chosen].sum())} | "
                      f"{float(reward[chosen].sum() / length[chosen].sum()):.2f} |")
     return "\n".join(lines)
+
 
 if __name__ == "__main__":
     main()

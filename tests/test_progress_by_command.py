@@ -25,14 +25,15 @@ def test_rows_holding_several_episodes_count_each_with_its_own_command():
     obs[..., up] = 1.0
     obs[0, :, command] = 0.25  # row 0: one slow episode, upright throughout
     obs[1, :4, command] = 0.25  # row 1: a slow episode that ends on its back at step 3...
-    obs[1, 3, up] = -0.9
     obs[1, 4:, command] = 0.75  # ...and a fast one that the reset started at step 4
+    next_obs = obs.roll(-1, 1)
+    next_obs[1, 3, up] = -0.9  # the terminal reading: only the step's next observation
     is_init = torch.zeros(2, 10, 1, dtype=torch.bool)
     is_init[:, 0] = is_init[1, 4] = True
     reward = torch.zeros(2, 10, 1)
     reward[0] = 0.5
     reward[1, 4:] = 0.9
-    td = TensorDict({"observation": obs, "is_init": is_init,
+    td = TensorDict({"observation": obs, "is_init": is_init, ("next", "observation"): next_obs,
                      ("next", "reward"): reward}, [2, 10])
     table = module.flips_by_command(td, "quadruped-flat").splitlines()
     # slow: 2 episodes, 14 steps, 1 on its back, reward 5.0 / 14; fast: 1, 6 steps, 0, 0.9

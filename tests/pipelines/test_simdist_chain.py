@@ -52,8 +52,10 @@ def test_progress_stats_mark_the_episodes_that_had_the_robot_on_its_back():
     td = env.rollout(4, still, break_when_any_done=False)
     env.close()
     gravity_z = layout["gravity"].start + 2
-    td["observation"][1, 2, gravity_z] = -0.6  # on its back at one step
-    td["observation"][2, 3, gravity_z] = -0.4  # tilted, not past the threshold
+    # the reading after step t is the observation of step t + 1
+    td["next", "observation"][1, 1, gravity_z] = td["observation"][1, 2, gravity_z] = -0.6
+    td["next", "observation"][2, 2, gravity_z] = td["observation"][2, 3, gravity_z] = -0.4
+    td["next", "observation"][0, 3, gravity_z] = -0.7  # on its back after the last step
     stats = progress_stats(td, layout["command"].start, gravity_z)
-    assert stats["upside_down"] == [False, True, False]
+    assert stats["upside_down"] == [True, True, False]
     assert "upside_down" not in progress_stats(td, layout["command"].start)

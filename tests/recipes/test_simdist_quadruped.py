@@ -511,4 +511,3 @@ def test_collecting_with_reset_upside_down_starts_a_fallen_world_again(reset, mo
     assert starts == ([0, 5] if reset else [0])
     assert data["next", "terminated"][1, 4].item() is reset
     assert not data["is_init"][0, 1:].any()  # the upright world runs on
-    assert recipe.Config().collect_reset_upside_down is False  # off by default

@@ -41,7 +41,8 @@ def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), tas
 
 
 def rollout(env, policy, steps: int, desc: str | None = None) -> TensorDict:
-    """``[episodes, steps]`` of one episode per world, deterministic exploration mode.
+    """``[worlds, steps]``, deterministic exploration mode: one episode per world, unless
+    the env ends episodes early (a terminal state), when the world starts another in its row.
 
     With ``desc``, a progress bar counts the control steps (an evaluation of 32 planned
     episodes takes minutes on a CPU and would otherwise be silent).
@@ -71,9 +72,11 @@ def progress_stats(td: TensorDict, command_index: int, gravity_z_index: int | No
     fraction = (progress / distance).numpy()
     metres = progress.numpy()
     summary = summarise(fraction)
-    flips = ({} if gravity_z_index is None else
-             {"upside_down": (td["observation"][..., gravity_z_index] < UPSIDE_DOWN)
-              .any(1).tolist()})
+    flips = {}
+    if gravity_z_index is not None:  # the readings before and after every step
+        z = torch.cat([td["observation"][:, :1, gravity_z_index],
+                       td["next", "observation"][..., gravity_z_index]], 1)
+        flips["upside_down"] = (z < UPSIDE_DOWN).any(1).tolist()
     return {"progress_m": metres.tolist(), "fraction": fraction.tolist(),
             "command_mps": command.tolist(), **flips,
             "mean_m": float(np.mean(metres)), "std_m": float(np.std(metres)),
