@@ -48,3 +48,13 @@ def run_script(path: Path, *args, capsys) -> Finished:
         torch.set_num_threads(threads)
     out, err = capsys.readouterr()
     return Finished(code, out, err)
+
+
+def benchmark_module(name: str):
+    """``benchmarks/<name>.py`` imported as a module (the scripts are not a package)."""
+    import importlib.util
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location(name, root / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

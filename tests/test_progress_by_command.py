@@ -1,24 +1,13 @@
 """benchmarks/progress_by_command.py's count of rolled-over target episodes per command."""
 
-import importlib.util
-from pathlib import Path
-
 import torch
 from tensordict import TensorDict
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location(
-        "progress_by_command", ROOT / "benchmarks" / "progress_by_command.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.in_process import benchmark_module
 
 
 def test_rows_holding_several_episodes_count_each_with_its_own_command():
-    module = _module()
+    module = benchmark_module("progress_by_command")
     layout = module.observation_layout("quadruped-flat")
     command, up = layout["command"].start, layout["gravity"].start + 2
     obs = torch.zeros(2, 10, layout.size)

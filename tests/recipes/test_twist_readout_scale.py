@@ -1,18 +1,14 @@
 """benchmarks/twist_readout_scale.py: state draws, targets, renders and the probe's rows."""
 
-import importlib.util
 import json
 import math
-from pathlib import Path
 
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location(
-    "twist_readout_scale", ROOT / "benchmarks" / "twist_readout_scale.py")
-scale = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(scale)
+from tests.in_process import benchmark_module
+
+scale = benchmark_module("twist_readout_scale")
 
 
 def test_states_stay_in_the_balancing_region_and_are_seeded():
@@ -53,11 +49,7 @@ def test_probe_rows_and_json(tmp_path):
 
 
 def _diagnosis():
-    spec = importlib.util.spec_from_file_location(
-        "twist_diagnosis", ROOT / "benchmarks" / "twist_diagnosis.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("twist_diagnosis")
 
 
 def test_fitted_readout_reads_what_the_probe_read_and_is_frozen():
