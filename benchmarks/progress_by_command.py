@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from simdist.envs import make_env
 from simdist.envs.quadruped import CONTROL_TIMESTEP
 from simdist.pipelines.locomotion import UPSIDE_DOWN
 from simdist.pipelines.report import format_by_command
+from simdist.recipes.simdist_quadruped import observation_layout  # cached per task
 from simdist.utils import load_memmap
 
 
@@ -65,13 +65,6 @@ def main(argv=None):
     for folder in args.data:
         print(f"\n{folder}")
         print(flips_by_command(load_memmap(folder)[:, :], results["config"]["task"]))
-
-
-def observation_layout(task: str):
-    env = make_env(task, num_envs=1, seed=0)
-    layout = env.observation_layout
-    env.close()
-    return layout
 
 
 def upside_down_steps(observation, task: str):

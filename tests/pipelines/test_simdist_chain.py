@@ -1,5 +1,6 @@
 """The SimDist chain on tiny budgets: dataset -> pretrain -> plan in a target -> finetune."""
 
+import pytest
 import torch
 
 from simdist.agents import SimDistAgent, SimDistConfig
@@ -59,3 +60,6 @@ def test_progress_stats_mark_the_episodes_that_had_the_robot_on_its_back():
     stats = progress_stats(td, layout["command"].start, gravity_z)
     assert stats["upside_down"] == [True, True, False]
     assert "upside_down" not in progress_stats(td, layout["command"].start)
+    td["is_init"][2, 2] = True  # a world reset mid-row: progress would mix two episodes
+    with pytest.raises(ValueError, match="one episode per row"):
+        progress_stats(td, layout["command"].start)

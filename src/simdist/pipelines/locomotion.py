@@ -66,6 +66,9 @@ def progress_stats(td: TensorDict, command_index: int, gravity_z_index: int | No
     that fails, see :func:`~simdist.pipelines.report.format_by_command`). Given the
     observation index of the body-frame gravity's z, also whether each episode had the
     robot on its back at some step (``upside_down``, below :data:`UPSIDE_DOWN`)."""
+    if "is_init" in td.keys() and td["is_init"][:, 1:].any():
+        raise ValueError("progress_stats needs one episode per row (is_init is set after a "
+                         "row's first step: its world was reset mid-rollout)")
     progress = td["next", "forward_progress"][:, -1, 0]
     command = td["observation"][:, 0, command_index]
     distance = command * td.shape[1] * CONTROL_TIMESTEP
