@@ -95,6 +95,17 @@ def test_the_table_by_commanded_speed_splits_each_point_by_its_episodes_speeds()
     assert "command_mps" not in aggregate_seeds([runs[0], old])["m"][0]
 
 
+def test_the_roll_table_marks_points_recorded_before_rolls_were_kept():
+    from simdist.pipelines.report import format_upside_down
+    new = {"fraction": [0.1, -0.3], "command_mps": [0.25, 0.5], "upside_down": [False, True]}
+    old = {"fraction": [0.2, 0.4], "command_mps": [0.25, 0.5]}  # a reused older record
+    lines = format_upside_down({"minutes": [0.0, 8.0], "m": [old, new]}, "ice").splitlines()
+    assert lines[2].split()[-2:] == ["n/a", "n/a"]
+    assert lines[3].split()[-2:] == ["0/1", "1/1"]
+    # no point recorded rolls: no table at all
+    assert format_upside_down({"minutes": [0.0], "m": [old]}, "ice") is None
+
+
 def test_the_tracking_table_counts_overshooting_as_error_not_as_progress():
     from simdist.pipelines.report import format_table, format_tracking_error
     point = lambda f: {"fraction": f, "progress_m": f, "mean_m": 1.0, "std_m": 0.0,

@@ -220,7 +220,9 @@ def format_paired_differences(results: dict, target: str, reference: str) -> str
 def format_upside_down(results: dict, target: str) -> str | None:
     """Evaluation episodes that had the robot on its back at some step, per commanded
     speed: one row per method and budget. ``None`` when some point lacks the per-episode
-    ``upside_down`` or ``command_mps`` (records written before they were kept).
+    ``command_mps`` or when no point has ``upside_down`` (records written before they
+    were kept); a point without ``upside_down`` among others that have it (a run that
+    reused an older stage record) prints ``n/a`` cells.
 
     A roll is the failure no later step repairs, so a method's mean fraction of the
     commanded distance can hide whether it fails by walking slowly or by falling over.
@@ -234,13 +236,18 @@ def format_upside_down(results: dict, target: str) -> str | None:
         m            0.00 min        1/2        0/1
     """
     rows = _rows(results)
-    if not rows or any("upside_down" not in r or "command_mps" not in r for _, _, r in rows):
+    if (not rows or any("command_mps" not in r for _, _, r in rows)
+            or not any("upside_down" in r for _, _, r in rows)):
         return None
     speeds = sorted({round(c, 6) for _, _, r in rows for c in r["command_mps"]})
     lines = [f"Episodes on their back at some step in {target}, by commanded speed (on their "
              "back / episodes)",
              f"{'method':33s} {'target data':>12s}" + "".join(f" {f'{v:g} m/s':>10s}" for v in speeds)]
     for name, minutes, r in rows:
+        if "upside_down" not in r:
+            lines.append(f"{name:33s} {_budget_cell(minutes)}"
+                         + "".join(f" {'n/a':>10s}" for _ in speeds))
+            continue
         flipped = np.asarray(r["upside_down"], dtype=bool)
         command = np.round(np.asarray(r["command_mps"], dtype=np.float64), 6)
         cells = [f"{int(flipped[command == v].sum())}/{int((command == v).sum())}"
