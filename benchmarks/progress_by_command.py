@@ -13,7 +13,10 @@ episode duration), so speed = progress / fraction / duration.
 
 ``--data``: target episodes the recipe recorded (a round's memmap folder); prints per
 commanded speed how many of them ended upside down at some step (the body-frame gravity
-sensor's z below -0.5: the quadruped rolled onto its back), and their mean reward.
+sensor's z below -0.5: the quadruped rolled onto its back), which way they went over
+(the first step tipped 60 degrees from upright: body-frame gravity x below -|y|, nose up,
+is over the tail), how many steps that took from a nose-up pitch of 27 degrees, and their
+mean reward.
 """
 
 from __future__ import annotations
@@ -72,9 +75,34 @@ def upside_down_steps(observation, task: str):
     return observation[..., observation_layout(task)["gravity"].start + 2] < UPSIDE_DOWN
 
 
+# Tipped over: the body's vertical axis 60 degrees from the world's (gravity z < 0.5).
+TIPPED = 0.5
+# Nose up by 27 degrees from the horizontal (gravity x < -0.45; on a 12 degree slope a body
+# parallel to the ground reads -0.21): where a tip over the tail is seen coming.
+NOSE_UP = -0.45
+
+
+def tip_overs(gravity: np.ndarray) -> tuple[int, list[int]]:
+    """Of the episodes' body-frame gravity readings (a list of ``[steps, 3]`` arrays), how
+    many tipped over the tail (x below -|y| at the first tipped step) and, for each of
+    those, the steps from the first nose-up reading before it to the tipped one."""
+    over_tail, lead = 0, []
+    for g in gravity:
+        tipped = np.flatnonzero(g[:, 2] < TIPPED)
+        if not len(tipped):
+            continue
+        t = tipped[0]
+        if g[t, 0] < -abs(g[t, 1]):
+            over_tail += 1
+            nose_up = np.flatnonzero(g[:t + 1, 0] < NOSE_UP)
+            lead.append(int(t - nose_up[0]) if len(nose_up) else 0)
+    return over_tail, lead
+
+
 def flips_by_command(td, task: str) -> str:
-    """Per commanded speed: episodes, steps, how many episodes rolled onto their back, mean
-    reward per step. A row that holds several episodes (collected with
+    """Per commanded speed: episodes, steps, how many episodes rolled onto their back, how
+    many tipped over the tail and how long that took from a nose-up pitch (median steps),
+    mean reward per step. A row that holds several episodes (collected with
     ``--collect-reset-upside-down``: a world on its back starts a new episode, with a newly
     drawn command) counts each of them."""
     obs = td["observation"]
@@ -95,12 +123,19 @@ def flips_by_command(td, task: str) -> str:
     length = torch.bincount(episode, minlength=count)
     reward = torch.zeros(count, dtype=torch.float64).index_add_(
         0, episode, td["next", "reward"].reshape(-1).double())
-    lines = ["| speed (m/s) | episodes | steps | rolled onto their back | mean reward per step |",
-             "| --- | --- | --- | --- | --- |"]
+    # the reading after each step, split into episodes at their starts
+    gravity = td["next", "observation"][..., layout["gravity"]].reshape(rows * steps, 3)
+    bounds = first.tolist() + [rows * steps]
+    episodes = [gravity[a:b].double().numpy() for a, b in zip(bounds[:-1], bounds[1:])]
+    lines = ["| speed (m/s) | episodes | steps | rolled onto their back | tipped over the tail "
+             "| steps from nose-up to tipped (median) | mean reward per step |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
     for speed in sorted(set(episode_command.tolist())):
         chosen = episode_command == speed
+        over_tail, lead = tip_overs([e for e, c in zip(episodes, chosen.tolist()) if c])
         lines.append(f"| {speed:g} | {int(chosen.sum())} | {int(length[chosen].sum())} | "
-                     f"{int(rolled[chosen].sum())} | "
+                     f"{int(rolled[chosen].sum())} | {over_tail} | "
+                     f"{f'{np.median(lead):.0f}' if lead else '-'} | "
                      f"{float(reward[chosen].sum() / length[chosen].sum()):.2f} |")
     return "\n".join(lines)
 
