@@ -1,0 +1,217 @@
+"""What the frozen value head says about a quadruped that tips over, and a value head fitted
+to the returns the pretraining data actually paid (issue 21; not a speed benchmark).
+
+The pretraining dataset's value labels are the expert critic's values of each recorded
+state (``value_target``). The critic was trained on the expert's own experience; the
+perturbed dataset also holds states the expert never reached, a robot on its back among
+them, and the labels there are whatever the critic extrapolates.
+
+``audit`` prints, for a finished recipe run:
+
+- the pretraining dataset's episodes that ended on their back, the critic's labels on
+  those steps against the reward paid there, and the discounted return to the episode's
+  end (bootstrapped by the critic at its last step);
+- for each target-data folder (a round's ``data``), the pretrained value head on the
+  frozen encoder's latents of the recorded steps, grouped by how many steps later the
+  episode tips over (body-frame gravity z below 0.5), against episodes that never tip.
+
+``refit`` fits the value head (from its pretrained weights) to those returns on the
+pretrained dynamics' latents ``z^_{t+i}``, ``i = 0..H`` (as the pretraining loss does),
+then once more with each episode's bootstrap read from the fitted head instead of the
+critic; and writes world-model weights (``--base``'s, default the pretrained ones, with
+the new value head) for ``benchmarks/planner_variants.py --weights``.
+
+    python benchmarks/value_labels.py audit --run RUN --data RUN/stages/round_2/data
+    python benchmarks/value_labels.py refit --run RUN --base RUN/stages/round_2/simdist.pt \\
+        --out refit.pt
+    python benchmarks/planner_variants.py --run RUN --weights refit.pt --domains slippery_slope
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simdist.data.dataset import read_dataset_meta
+from simdist.pipelines.locomotion import UPSIDE_DOWN
+from simdist.recipes import simdist_quadruped as recipe
+from simdist.utils import load_checkpoint, load_memmap, read_json
+
+TIPPED = 0.5  # body-frame gravity z: the body's vertical 60 degrees from the world's
+STEPS_BEFORE_TIP = ((0, 10), (10, 20), (20, 40), (40, 80), (80, 160))
+
+
+def discounted_returns(reward: torch.Tensor, bootstrap: torch.Tensor, gamma: float
+                       ) -> torch.Tensor:
+    """``G_t = r_t + gamma r_{t+1} + ... + gamma^(T-t) bootstrap`` over ``[B, T]`` rows
+    that are one episode each, ``bootstrap [B]`` standing for the value after the last
+    step.
+
+    Examples:
+        >>> discounted_returns(torch.tensor([[1.0, 0.0, 2.0]]), torch.tensor([4.0]), 0.5)
+        tensor([[2.0000, 2.0000, 4.0000]])
+    """
+    out = torch.empty_like(reward)
+    running = bootstrap.to(reward.dtype)
+    for t in range(reward.shape[1] - 1, -1, -1):
+        running = reward[:, t] + gamma * running
+        out[:, t] = running
+    return out
+
+
+def steps_until_tip(gravity_z: np.ndarray, is_init: np.ndarray) -> np.ndarray:
+    """``[B, T]``: steps from each step to its episode's first tipped reading (0 at that
+    step), -1 after it, ``inf`` in an episode that never tips. Rows may hold several
+    episodes (``is_init`` starts each)."""
+    out = np.full(gravity_z.shape, np.inf)
+    for row, (z, init) in enumerate(zip(gravity_z, is_init)):
+        starts = list(np.flatnonzero(init)) + [len(z)]
+        if starts[0] != 0:
+            starts = [0, *starts]
+        for a, b in zip(starts[:-1], starts[1:]):
+            tipped = np.flatnonzero(z[a:b] < TIPPED)
+            if len(tipped):
+                t = tipped[0]
+                out[row, a:a + t + 1] = t - np.arange(t + 1)
+                out[row, a + t + 1:b] = -1
+    return out
+
+
+def _run(run: Path):
+    cfg, pretrained = recipe.load_finished_run(run)
+    agent = recipe.load_agent(cfg, pretrained)
+    dataset = Path(read_json(run / "stages" / "dataset.json", "record of stage 'dataset'")
+                   ["result"]["path"])
+    data = load_memmap(dataset / "data", manifest=read_dataset_meta(dataset)["files"])
+    return cfg, agent, data
+
+
+def _encode(world_model, td, chunk: int = 64) -> torch.Tensor:
+    obs, init, act = td["observation"].float(), td["is_init"].reshape(td.shape), td["action"].float()
+    with torch.no_grad():
+        return torch.cat([world_model.encode_sequence(obs[i:i + chunk], init[i:i + chunk],
+                                                      act[i:i + chunk])
+                          for i in range(0, td.shape[0], chunk)])
+
+
+def audit(run: Path, folders: list[Path]) -> None:
+    cfg, agent, data = _run(run)
+    wm, gamma = agent.world_model, cfg.planner().gamma
+    grav = recipe.observation_layout(cfg.data_task)["gravity"]
+    z_up = data["observation"][..., grav.start + 2].numpy()
+    reward = data["next", "reward"].reshape(data.shape).double()
+    critic = data["value_target"].reshape(data.shape).double()
+    returns = discounted_returns(reward, critic[:, -1], gamma).numpy()
+    back = z_up < UPSIDE_DOWN
+    print(f"pretraining data: {data.shape[0]} episodes, {int(back.any(1).sum())} on their back "
+          f"at some step ({100 * back.mean():.1f}% of the steps)")
+    print(f"  on their back: critic label {critic.numpy()[back].mean():.1f}, reward per step "
+          f"{reward.numpy()[back].mean():.3f}, discounted return to the end "
+          f"{returns[back].mean():.1f}")
+    print(f"  upright: critic label {critic.numpy()[~back].mean():.1f}, discounted return "
+          f"{returns[~back].mean():.1f}")
+    grav = recipe.observation_layout(cfg.task)["gravity"]
+    for folder in folders:
+        td = load_memmap(folder)[:, :]
+        with torch.no_grad():
+            value = wm.value(_encode(wm, td)).squeeze(-1).numpy()
+        until = steps_until_tip(td["next", "observation"][..., grav.start + 2].numpy(),
+                                td["is_init"].reshape(td.shape).numpy())
+        command = td["observation"][..., recipe.observation_layout(cfg.task)["command"].start]
+        command = np.round(command.double().numpy(), 6)
+        speeds = sorted(set(command[:, 0].tolist()))
+        never = np.isinf(until)
+        never[:, :cfg.model_history or 4] = False  # the encoder's window still filling
+        groups = [(f"{low}-{high}", (until >= low) & (until < high))
+                  for low, high in STEPS_BEFORE_TIP]
+        groups += [("never tips", never), ("after tipping", until < 0)]
+        print(f"\n{folder}: the pretrained value head on the encoded target steps, by "
+              "commanded speed (V, steps)")
+        print("| steps before the episode tips over |" + "".join(f" {v:g} m/s |" for v in speeds))
+        print("| --- |" + " --- |" * len(speeds))
+        for name, chosen in groups:
+            cells = []
+            for v in speeds:
+                m = chosen & (command == v)
+                cells.append(f" {value[m].mean():.1f} ({int(m.sum())}) |" if m.any() else " - |")
+            print(f"| {name} |" + "".join(cells))
+
+
+def refit(run: Path, base: str | None, out: Path, iterations: int, updates: int,
+          batch: int, lr: float, seed: int) -> None:
+    cfg, agent, data = _run(run)
+    torch.manual_seed(seed)
+    wm, gamma, horizon = agent.world_model, cfg.planner().gamma, cfg.model_horizon
+    B, T = data.shape
+    if not (data["is_init"].reshape(B, T)[:, 0].all() and not data["is_init"].reshape(B, T)[:, 1:].any()):
+        raise ValueError("refit reads one episode per dataset row")
+    z = _encode(wm, data)
+    actions = data["action"].float()
+    with torch.no_grad():  # the latents the pretraining loss trains V on: z^_{t+i}, i = 0..H
+        path, current = [z[:, :T - horizon]], z[:, :T - horizon]
+        for i in range(horizon):
+            current = wm.dynamics(current, actions[:, i:T - horizon + i])
+            path.append(current)
+        path = torch.stack(path, 2)
+    reward = data["next", "reward"].reshape(B, T).double()
+    bootstrap = data["value_target"].reshape(B, T)[:, -1].double()
+    heldout = torch.zeros(B, dtype=torch.bool)
+    heldout[torch.randperm(B)[:max(1, B // 10)]] = True
+    train = (~heldout).nonzero().squeeze(-1)
+    head = wm.value_head
+    optim = torch.optim.Adam(head.parameters(), lr=lr)
+    for it in range(iterations):
+        labels = discounted_returns(reward, bootstrap, gamma).float()
+        target = labels.unfold(1, horizon + 1, 1)[:, :T - horizon]
+        for _ in range(updates):
+            rows, steps = train[torch.randint(len(train), (batch,))], torch.randint(T - horizon, (batch,))
+            loss = (head(path[rows, steps]).squeeze(-1) - target[rows, steps]).pow(2).mean()
+            optim.zero_grad()
+            loss.backward()
+            optim.step()
+        with torch.no_grad():
+            value = head(path[heldout, :, 0]).squeeze(-1)
+            truth = labels[heldout, :T - horizon]
+            r2 = 1 - (value - truth).pow(2).mean() / truth.var()
+            bootstrap = head(z[:, -1]).squeeze(-1).double()  # the next labels' bootstrap
+        print(f"iteration {it + 1}: labels mean {labels.mean():.1f}; held-out episodes R^2 "
+              f"{r2:.3f}")
+    weights = load_checkpoint(base or recipe.member_paths(
+        read_json(run / "stages" / "pretrain.json", "record of stage 'pretrain'")["result"])[0])
+    weights.update({f"value_head.{k}": v for k, v in head.state_dict().items()})
+    torch.save(weights, out)
+    print(f"wrote {out}")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    a = sub.add_parser("audit", help="value labels and the value head near tip-overs")
+    a.add_argument("--run", required=True, type=Path, help="a finished recipe output folder")
+    a.add_argument("--data", nargs="*", default=[], type=Path,
+                   help="memmap folders of recorded target episodes (a round's data)")
+    r = sub.add_parser("refit", help="fit the value head to the data's returns")
+    r.add_argument("--run", required=True, type=Path)
+    r.add_argument("--base", default=None,
+                   help="world-model weights the new head goes into (default: pretrained)")
+    r.add_argument("--out", required=True, type=Path)
+    r.add_argument("--iterations", type=int, default=2)
+    r.add_argument("--updates", type=int, default=3000, help="per iteration")
+    r.add_argument("--batch", type=int, default=256)
+    r.add_argument("--lr", type=float, default=3e-4)
+    r.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    if args.command == "audit":
+        audit(args.run, args.data)
+    else:
+        refit(args.run, args.base, args.out, args.iterations, args.updates, args.batch,
+              args.lr, args.seed)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,26 @@
+"""benchmarks/value_labels.py: discounted returns and the steps before a tip-over."""
+
+import numpy as np
+import torch
+
+from tests.in_process import benchmark_module
+
+
+def test_returns_discount_to_the_episode_end_and_bootstrap_after_it():
+    module = benchmark_module("value_labels")
+    reward = torch.tensor([[1.0, 0.0, 2.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+    out = module.discounted_returns(reward, torch.tensor([4.0, 8.0]), 0.5)
+    # row 0: G2 = 2 + .5 * 4 = 4, G1 = 0 + .5 * 4 = 2, G0 = 1 + .5 * 2 = 2
+    assert torch.allclose(out, torch.tensor([[2.0, 2.0, 4.0], [1.0, 2.0, 4.0]], dtype=torch.float64))
+
+
+def test_steps_until_tip_count_down_per_episode_of_a_row():
+    module = benchmark_module("value_labels")
+    z = np.ones((2, 6))
+    z[0, 3:] = -0.9  # row 0 tips at step 3 and stays down
+    z[1, 1] = 0.2  # row 1: its first episode tips at step 1; a second starts at step 3
+    init = np.zeros((2, 6), dtype=bool)
+    init[:, 0] = init[1, 3] = True
+    out = module.steps_until_tip(z, init)
+    assert out[0].tolist() == [3, 2, 1, 0, -1, -1]
+    assert out[1, :3].tolist() == [1, 0, -1] and np.isinf(out[1, 3:]).all()
