@@ -82,21 +82,23 @@ TIPPED = 0.5
 NOSE_UP = -0.45
 
 
-def tip_overs(gravity: np.ndarray) -> tuple[int, list[int]]:
+def tip_overs(gravity: np.ndarray) -> tuple[int, int, list[int]]:
     """Of the episodes' body-frame gravity readings (a list of ``[steps, 3]`` arrays), how
-    many tipped over the tail (x below -|y| at the first tipped step) and, for each of
-    those, the steps from the first nose-up reading before it to the tipped one."""
-    over_tail, lead = 0, []
+    many tipped over, how many of those over the tail (x below -|y| at the first tipped
+    step) and, for each of these, the steps from the first nose-up reading before it to
+    the tipped one."""
+    count, over_tail, lead = 0, 0, []
     for g in gravity:
         tipped = np.flatnonzero(g[:, 2] < TIPPED)
         if not len(tipped):
             continue
+        count += 1
         t = tipped[0]
         if g[t, 0] < -abs(g[t, 1]):
             over_tail += 1
             nose_up = np.flatnonzero(g[:t + 1, 0] < NOSE_UP)
             lead.append(int(t - nose_up[0]) if len(nose_up) else 0)
-    return over_tail, lead
+    return count, over_tail, lead
 
 
 def flips_by_command(td, task: str) -> str:
@@ -127,14 +129,14 @@ def flips_by_command(td, task: str) -> str:
     gravity = td["next", "observation"][..., layout["gravity"]].reshape(rows * steps, 3)
     bounds = first.tolist() + [rows * steps]
     episodes = [gravity[a:b].double().numpy() for a, b in zip(bounds[:-1], bounds[1:])]
-    lines = ["| speed (m/s) | episodes | steps | rolled onto their back | tipped over the tail "
+    lines = ["| speed (m/s) | episodes | steps | rolled onto their back | tipped over (over the tail) "
              "| steps from nose-up to tipped (median) | mean reward per step |",
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for speed in sorted(set(episode_command.tolist())):
         chosen = episode_command == speed
-        over_tail, lead = tip_overs([e for e, c in zip(episodes, chosen.tolist()) if c])
+        tipped, over_tail, lead = tip_overs([e for e, c in zip(episodes, chosen.tolist()) if c])
         lines.append(f"| {speed:g} | {int(chosen.sum())} | {int(length[chosen].sum())} | "
-                     f"{int(rolled[chosen].sum())} | {over_tail} | "
+                     f"{int(rolled[chosen].sum())} | {tipped} ({over_tail}) | "
                      f"{f'{np.median(lead):.0f}' if lead else '-'} | "
                      f"{float(reward[chosen].sum() / length[chosen].sum()):.2f} |")
     return "\n".join(lines)

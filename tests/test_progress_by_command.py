@@ -30,8 +30,8 @@ def test_rows_holding_several_episodes_count_each_with_its_own_command():
     table = module.flips_by_command(td, "quadruped-flat").splitlines()
     # slow: 2 episodes, 14 steps, 1 on its back, over the tail 1 step after nose-up,
     # reward 5.0 / 14; fast: 1, 6 steps, none tipped, 0.9
-    assert table[2:] == ["| 0.25 | 2 | 14 | 1 | 1 | 1 | 0.36 |",
-                         "| 0.75 | 1 | 6 | 0 | 0 | - | 0.90 |"]
+    assert table[2:] == ["| 0.25 | 2 | 14 | 1 | 1 (1) | 1 | 0.36 |",
+                         "| 0.75 | 1 | 6 | 0 | 0 (0) | - | 0.90 |"]
 
 
 def test_tip_overs_tell_over_the_tail_from_sideways_and_time_the_nose_up():
@@ -42,4 +42,4 @@ def test_tip_overs_tell_over_the_tail_from_sideways_and_time_the_nose_up():
     tail[4] = [-0.9, 0.1, 0.4]  # ...tipped at step 4, over the tail
     side = upright.copy()
     side[2] = [-0.3, 0.9, 0.3]  # tipped at step 2 sideways (y beyond x)
-    assert module.tip_overs([upright, tail, side]) == (1, [3])
+    assert module.tip_overs([upright, tail, side]) == (2, 1, [3])
