@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from simdist.envs.quadruped import CONTROL_TIMESTEP
-from simdist.pipelines.locomotion import UPSIDE_DOWN
+from simdist.pipelines.locomotion import TIPPED, UPSIDE_DOWN
 from simdist.pipelines.report import format_by_command
 from simdist.recipes.simdist_quadruped import observation_layout  # cached per task
 from simdist.utils import load_memmap
@@ -75,8 +75,6 @@ def upside_down_steps(observation, task: str):
     return observation[..., observation_layout(task)["gravity"].start + 2] < UPSIDE_DOWN
 
 
-# Tipped over: the body's vertical axis 60 degrees from the world's (gravity z < 0.5).
-TIPPED = 0.5
 # Nose up by 27 degrees from the horizontal (gravity x < -0.45; on a 12 degree slope a body
 # parallel to the ground reads -0.21): where a tip over the tail is seen coming.
 NOSE_UP = -0.45

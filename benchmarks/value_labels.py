@@ -34,13 +34,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torchrl.objectives.value.functional import reward2go
 
 from simdist.data.dataset import read_dataset_meta
-from simdist.pipelines.locomotion import UPSIDE_DOWN
+from simdist.pipelines.locomotion import TIPPED, UPSIDE_DOWN
 from simdist.recipes import simdist_quadruped as recipe
 from simdist.utils import load_checkpoint, load_memmap, read_json
 
-TIPPED = 0.5  # body-frame gravity z: the body's vertical 60 degrees from the world's
 STEPS_BEFORE_TIP = ((0, 10), (10, 20), (20, 40), (40, 80), (80, 160))
 
 
@@ -52,14 +52,13 @@ def discounted_returns(reward: torch.Tensor, bootstrap: torch.Tensor, gamma: flo
 
     Examples:
         >>> discounted_returns(torch.tensor([[1.0, 0.0, 2.0]]), torch.tensor([4.0]), 0.5)
-        tensor([[2.0000, 2.0000, 4.0000]])
+        tensor([[2., 2., 4.]])
     """
-    out = torch.empty_like(reward)
-    running = bootstrap.to(reward.dtype)
-    for t in range(reward.shape[1] - 1, -1, -1):
-        running = reward[:, t] + gamma * running
-        out[:, t] = running
-    return out
+    done = torch.zeros(reward.shape, dtype=torch.bool, device=reward.device)
+    done[:, -1] = True
+    steps_left = torch.arange(reward.shape[1], 0, -1, device=reward.device)  # T - t
+    return (reward2go(reward, done, gamma, time_dim=-1)
+            + gamma ** steps_left * bootstrap.to(reward.dtype)[:, None])
 
 
 def steps_until_tip(gravity_z: np.ndarray, is_init: np.ndarray) -> np.ndarray:
@@ -151,11 +150,9 @@ def refit(run: Path, base: str | None, out: Path, iterations: int, updates: int,
     z = _encode(wm, data)
     actions = data["action"].float()
     with torch.no_grad():  # the latents the pretraining loss trains V on: z^_{t+i}, i = 0..H
-        path, current = [z[:, :T - horizon]], z[:, :T - horizon]
-        for i in range(horizon):
-            current = wm.dynamics(current, actions[:, i:T - horizon + i])
-            path.append(current)
-        path = torch.stack(path, 2)
+        start = z[:, :T - horizon]
+        windows = actions.unfold(1, horizon, 1)[:, :T - horizon].transpose(-1, -2)  # [B, S, H, A]
+        path = torch.cat([start.unsqueeze(2), wm.rollout(start, windows)], 2)
     reward = data["next", "reward"].reshape(B, T).double()
     bootstrap = data["value_target"].reshape(B, T)[:, -1].double()
     heldout = torch.zeros(B, dtype=torch.bool)

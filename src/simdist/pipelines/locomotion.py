@@ -19,6 +19,7 @@ from simdist.envs.quadruped import CONTROL_TIMESTEP
 from simdist.pipelines.statistics import summarise
 
 UPSIDE_DOWN = -0.5  # body-frame gravity z (1 upright): below it the robot is on its back
+TIPPED = 0.5  # body-frame gravity z: below it the body's vertical is 60 degrees off the world's
 
 
 def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), task="quadruped-flat",
