@@ -15,6 +15,12 @@ them, and the labels there are whatever the critic extrapolates.
   frozen encoder's latents of the recorded steps, grouped by how many steps later the
   episode tips over (body-frame gravity z below 0.5), against episodes that never tip.
 
+``foresee`` asks whether the world model sees a tip-over coming when it is given the
+actions the robot actually took: from ``--steps-before`` steps before each recorded tip, it
+rolls the dynamics open-loop on the recorded actions and prints, in 10-step bins, the
+predicted reward and the value head on the predicted latents beside the real reward and
+body-frame gravity z (pretrained dynamics and each ``--weights``).
+
 ``refit`` fits the value head (from its pretrained weights) to those returns on the
 pretrained dynamics' latents ``z^_{t+i}``, ``i = 0..H`` (as the pretraining loss does),
 then once more with each episode's bootstrap read from the fitted head instead of the
@@ -22,6 +28,8 @@ critic; and writes world-model weights (``--base``'s, default the pretrained one
 the new value head) for ``benchmarks/planner_variants.py --weights``.
 
     python benchmarks/value_labels.py audit --run RUN --data RUN/stages/round_2/data
+    python benchmarks/value_labels.py foresee --run RUN --data RUN/stages/round_2/data \\
+        --weights RUN/stages/round_2/simdist.pt --steps-before 80
     python benchmarks/value_labels.py refit --run RUN --base RUN/stages/round_2/simdist.pt \\
         --out refit.pt
     python benchmarks/planner_variants.py --run RUN --weights refit.pt --domains slippery_slope
@@ -77,6 +85,16 @@ def steps_until_tip(gravity_z: np.ndarray, is_init: np.ndarray) -> np.ndarray:
                 out[row, a:a + t + 1] = t - np.arange(t + 1)
                 out[row, a + t + 1:b] = -1
     return out
+
+
+def windows_before_tip(until: np.ndarray, steps_before: int, length: int, first: int
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, starts)`` of the windows of ``length`` steps that start ``steps_before``
+    steps before a tip (``until`` from :func:`steps_until_tip`), no earlier than step
+    ``first`` (the encoder's window filled) and ending inside the row."""
+    rows, starts = np.nonzero(until == steps_before)
+    keep = (starts >= first) & (starts + length <= until.shape[1])
+    return rows[keep], starts[keep]
 
 
 def _run(run: Path):
@@ -139,6 +157,66 @@ def audit(run: Path, folders: list[Path]) -> None:
             print(f"| {name} |" + "".join(cells))
 
 
+def foresee(run: Path, folders: list[Path], weights: list[str], steps_before: int,
+            after: int = 30, width: int = 10) -> None:
+    cfg, agent, _ = _run(run)
+    _, pretrained = recipe.load_finished_run(run)
+    grav = recipe.observation_layout(cfg.task)["gravity"]
+    length = steps_before + after
+    bins = range(0, length, width)
+    for folder in folders:
+        td = load_memmap(folder)[:, :]
+        gravity_z = td["next", "observation"][..., grav.start + 2].numpy()
+        until = steps_until_tip(gravity_z, td["is_init"].reshape(td.shape).numpy())
+        rows, starts = windows_before_tip(until, steps_before, length, cfg.model_history or 4)
+        if not len(rows):
+            print(f"\n{folder}: no tip-over {steps_before} steps into a full window")
+            continue
+        # controls: the same start steps in episodes of the same commanded speed that never tip
+        speed = np.round(td["observation"][:, 0, recipe.observation_layout(cfg.task)["command"]
+                                           .start].double().numpy(), 6)
+        never = np.flatnonzero(np.isinf(until).all(1))
+        rng = np.random.default_rng(0)
+        pairs = [(rng.choice(never[speed[never] == speed[r]]), t) for r, t in zip(rows, starts)
+                 if (speed[never] == speed[r]).any()]
+        take = lambda x, at: torch.stack([torch.as_tensor(x[r, t:t + length])  # noqa: E731
+                                          for r, t in at])
+        tips = list(zip(rows, starts))
+        reward = td["next", "reward"].reshape(td.shape).float()
+        lines = [("gravity z, real", take(gravity_z, tips).double(), ".2f"),
+                 ("reward, real", take(reward, tips), ".2f")]
+        if pairs:
+            lines.append(("reward, real, controls", take(reward, pairs), ".2f"))
+        encoder = None
+        for name in ["pretrained", *weights]:
+            wm = (agent if name == "pretrained"
+                  else recipe.load_agent(cfg, pretrained, name)).world_model
+            z = _encode(wm, td)
+            with torch.no_grad():
+                for label, at in [("", tips), (", controls", pairs)][:1 + bool(pairs)]:
+                    actions = take(td["action"].float(), at)
+                    z0 = torch.stack([z[r, t] for r, t in at])
+                    path = torch.cat([z0[:, None], wm.rollout(z0, actions)[:, :-1]], 1)
+                    lines += [(f"{name}: reward predicted{label}",
+                               wm.reward(path, actions).squeeze(-1), ".2f"),
+                              (f"{name}: V on the predicted latents{label}",
+                               wm.value(path).squeeze(-1), ".1f")]
+                state = [p.detach().clone() for p in wm.encoder.parameters()]
+                if encoder is None or any(not torch.equal(a, b) for a, b in zip(state, encoder)):
+                    # dynamics-only finetuning keeps the encoder: the row would repeat
+                    lines.append((f"{name}: V on the encoded real steps",
+                                  wm.value(take(z, tips)).squeeze(-1), ".1f"))
+                encoder = state
+        print(f"\n{folder}: {len(rows)} tip-overs, the dynamics rolled open-loop on the "
+              f"recorded actions from {steps_before} steps before each; controls: the same "
+              f"steps of {len(pairs)} episodes at the same commanded speed that never tip "
+              f"(means per {width}-step bin)")
+        print("| steps from the tip |" + "".join(f" {b - steps_before:+d} |" for b in bins))
+        print("| --- |" + " --- |" * len(bins))
+        for name, values, fmt in lines:
+            print(f"| {name} |" + "".join(f" {values[:, b:b + width].mean():{fmt}} |" for b in bins))
+
+
 def refit(run: Path, base: str | None, out: Path, iterations: int, updates: int,
           batch: int, lr: float, seed: int) -> None:
     cfg, agent, data = _run(run)
@@ -191,6 +269,13 @@ def main(argv=None):
     a.add_argument("--run", required=True, type=Path, help="a finished recipe output folder")
     a.add_argument("--data", nargs="*", default=[], type=Path,
                    help="memmap folders of recorded target episodes (a round's data)")
+    f = sub.add_parser("foresee", help="does the model predict a tip-over from the actions taken")
+    f.add_argument("--run", required=True, type=Path)
+    f.add_argument("--data", nargs="+", required=True, type=Path,
+                   help="memmap folders of recorded target episodes (a round's data)")
+    f.add_argument("--weights", nargs="*", default=[],
+                   help="finetuned world-model weights to compare with the pretrained ones")
+    f.add_argument("--steps-before", type=int, default=60)
     r = sub.add_parser("refit", help="fit the value head to the data's returns")
     r.add_argument("--run", required=True, type=Path)
     r.add_argument("--base", default=None,
@@ -205,6 +290,8 @@ def main(argv=None):
     torch.set_num_threads(1)
     if args.command == "audit":
         audit(args.run, args.data)
+    elif args.command == "foresee":
+        foresee(args.run, args.data, args.weights, args.steps_before)
     else:
         refit(args.run, args.base, args.out, args.iterations, args.updates, args.batch,
               args.lr, args.seed)

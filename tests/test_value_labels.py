@@ -24,3 +24,19 @@ def test_steps_until_tip_count_down_per_episode_of_a_row():
     out = module.steps_until_tip(z, init)
     assert out[0].tolist() == [3, 2, 1, 0, -1, -1]
     assert out[1, :3].tolist() == [1, 0, -1] and np.isinf(out[1, 3:]).all()
+
+
+def test_windows_before_tip_start_k_steps_before_and_fit_in_the_row():
+    module = benchmark_module("value_labels")
+    z = np.ones((3, 12))
+    z[0, 6:] = -1.0  # tips at step 6: a window from step 2 (4 before) fits
+    z[1, 3:] = -1.0  # tips at step 3: 4 before is step -1, no window
+    z[2, 10:] = -1.0  # tips at step 10: starts at 6, but 6 + 8 steps leaves the row
+    init = np.zeros((3, 12), dtype=bool)
+    init[:, 0] = True
+    until = module.steps_until_tip(z, init)
+    rows, starts = module.windows_before_tip(until, 4, 8, first=1)
+    assert rows.tolist() == [0] and starts.tolist() == [2]
+    rows, _ = module.windows_before_tip(until, 4, 6, first=1)
+    assert rows.tolist() == [0, 2]
+    assert len(module.windows_before_tip(until, 4, 8, first=3)[0]) == 0
