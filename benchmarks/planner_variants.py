@@ -11,6 +11,17 @@ variants given as ``name:field=value,field=value`` (fields of ``PlannerConfig``)
         --variant "recipe:" --variant "pi50:policy_fraction=0.5" --variant "std05:init_std=0.5"
 
 The recipe's planner (``recipe:``) is every variant's base; a variant overrides fields.
+
+``--against RUN/stages/round_2.json`` pairs each variant, episode by episode, with the
+recipe's own evaluation of SimDist in that round (same worlds: evaluate the round's
+weights, ``--weights RUN/stages/round_2/simdist.pt``, on the round's target); ``--pool``
+pools saved comparisons of several seeds without evaluating anything:
+
+    python benchmarks/planner_variants.py --run RUN --domains slippery_slope \
+        --weights RUN/stages/round_2/simdist.pt --variant "H60p20:horizon=60,policy_noise_steps=20" \
+        --against RUN/stages/round_2.json --save-json h60p20_s0.json
+    python benchmarks/planner_variants.py --pool h60p20_s0.json=RUN0/stages/round_2.json \
+        h60p20_s1.json=RUN1/stages/round_2.json --domains slippery_slope
 """
 
 from __future__ import annotations
@@ -27,6 +38,8 @@ import torch
 from simdist.envs import get_target
 from simdist.recipes import simdist_quadruped as recipe
 from simdist.pipelines import locomotion_env, progress_stats, rollout
+from simdist.pipelines.statistics import summarise, summarise_groups
+from simdist.utils import read_json
 
 def parse_variant(text: str) -> tuple[str, dict]:
     name, _, fields = text.partition(":")
@@ -68,11 +81,59 @@ class PriorPolicy(torch.nn.Module):
         return self.inner.replace_action(td, torch.maximum(torch.minimum(action, high), low))
 
 
+def recipe_evaluation(record: str | Path) -> dict:
+    """The recipe's SimDist evaluation (per-episode ``fraction`` and ``command_mps``) kept
+    in a round's stage record."""
+    return read_json(Path(record), "round record")["result"]["simdist_eval"]
+
+
+def paired_rows(fractions: list[float], evaluation: dict) -> tuple[list[float], dict]:
+    """Per-episode differences (points of the commanded distance) of a variant's
+    ``fractions`` against the recipe's ``evaluation`` on the same worlds, and the means of
+    both per commanded speed (``{speed: (variant, recipe, episodes)}``)."""
+    ours, theirs = torch.tensor(fractions), torch.tensor(evaluation["fraction"])
+    if ours.shape != theirs.shape:
+        raise ValueError(f"{len(fractions)} episodes against the record's {len(theirs)}: "
+                         "evaluate the same worlds (--episodes as the run's)")
+    speed = torch.tensor(evaluation["command_mps"])
+    by_speed = {round(v, 6): (100 * ours[speed == v].mean().item(),
+                              100 * theirs[speed == v].mean().item(), int((speed == v).sum()))
+                for v in sorted(set(speed.tolist()))}
+    return (100 * (ours - theirs)).tolist(), by_speed
+
+
+def _print_paired(name: str, groups: list[list[float]], speeds: list[dict]) -> None:
+    stats = summarise_groups(groups) if len(groups) > 1 else summarise(groups[0])
+    cells = "; ".join(f"{v:g} m/s {sum(s[v][0] * s[v][2] for s in speeds) / sum(s[v][2] for s in speeds):.0f}% "
+                      f"vs {sum(s[v][1] * s[v][2] for s in speeds) / sum(s[v][2] for s in speeds):.0f}%"
+                      for v in speeds[0])
+    print(f"  {name} minus the recipe's evaluation, paired by episode ({len(groups)} run(s), "
+          f"{stats['n']} episodes): {stats['mean']:+.1f} [{stats['ci_low']:+.1f}, "
+          f"{stats['ci_high']:+.1f}]; by speed (variant vs recipe): {cells}", flush=True)
+
+
+def pool(pairs: list[str], domains: list[str]) -> None:
+    """Prints each saved variant's paired difference pooled over ``pairs`` of
+    ``VARIANT_JSON=ROUND_JSON`` (one per seed; the interval stratified by seed)."""
+    loaded = [(json.loads(Path(v).read_text()), recipe_evaluation(r))
+              for v, _, r in (p.partition("=") for p in pairs)]
+    for name in loaded[0][0]:
+        for domain in domains:
+            rows = [paired_rows(saved[name][domain], ev) for saved, ev in loaded
+                    if domain in saved.get(name, {})]
+            if rows:
+                _print_paired(f"{name} ({domain})", [d for d, _ in rows], [s for _, s in rows])
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", required=True, help="a finished recipe output folder")
+    parser.add_argument("--run", help="a finished recipe output folder")
     parser.add_argument("--domains", nargs="+", default=["sim"])
+    parser.add_argument("--against", default=None,
+                        help="a round's stage record: pair each evaluation with its SimDist one")
+    parser.add_argument("--pool", nargs="+", default=None, metavar="VARIANT_JSON=ROUND_JSON",
+                        help="pool saved --save-json files against their rounds; no evaluation")
     parser.add_argument("--variant", action="append", default=None,
                         help="name:field=value,... (PlannerConfig fields); repeatable")
     parser.add_argument("--prior", action="store_true", help="also evaluate the BC prior alone")
@@ -85,8 +146,13 @@ def main(argv=None):
                         help="write every variant's per-episode fractions per domain here "
                              "(for paired comparisons on the same worlds)")
     args = parser.parse_args(argv)
+    if args.pool:
+        return pool(args.pool, args.domains)
+    if not args.run:
+        parser.error("--run is required unless --pool is given")
     torch.set_num_threads(1)
     run = Path(args.run)
+    against = recipe_evaluation(args.against) if args.against else None
     cfg, pretrained = recipe.load_finished_run(
         run, **({"episodes": args.episodes} if args.episodes else {}))
     agent = recipe.load_agent(cfg, pretrained, args.weights)
@@ -123,6 +189,9 @@ def main(argv=None):
             print(f"| {name} {overrides or ''} | {domain} | {100 * stats['mean_fraction']:.0f}% "
                   f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) | "
                   f"{time.perf_counter() - start:.0f} |{extra}", flush=True)
+            if against is not None:
+                diff, speeds = paired_rows(saved[name][domain], against)
+                _print_paired(name, [diff], [speeds])
 
 
 if __name__ == "__main__":
