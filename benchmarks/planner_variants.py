@@ -104,9 +104,9 @@ def paired_rows(fractions: list[float], evaluation: dict) -> tuple[list[float], 
 
 def _print_paired(name: str, groups: list[list[float]], speeds: list[dict]) -> None:
     stats = summarise_groups(groups) if len(groups) > 1 else summarise(groups[0])
-    cells = "; ".join(f"{v:g} m/s {sum(s[v][0] * s[v][2] for s in speeds) / sum(s[v][2] for s in speeds):.0f}% "
-                      f"vs {sum(s[v][1] * s[v][2] for s in speeds) / sum(s[v][2] for s in speeds):.0f}%"
-                      for v in speeds[0])
+    def pooled(v, i):  # episode-weighted mean over the runs at speed v
+        return sum(s[v][i] * s[v][2] for s in speeds) / sum(s[v][2] for s in speeds)
+    cells = "; ".join(f"{v:g} m/s {pooled(v, 0):.0f}% vs {pooled(v, 1):.0f}%" for v in speeds[0])
     print(f"  {name} minus the recipe's evaluation, paired by episode ({len(groups)} run(s), "
           f"{stats['n']} episodes): {stats['mean']:+.1f} [{stats['ci_low']:+.1f}, "
           f"{stats['ci_high']:+.1f}]; by speed (variant vs recipe): {cells}", flush=True)
