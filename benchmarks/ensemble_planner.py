@@ -39,7 +39,7 @@ import torch
 from simdist.agents import SimDistAgent
 from simdist.envs import get_target
 from simdist.modules import WorldModelEnsemble
-from simdist.pipelines import as_slices, locomotion_env, progress_stats, rollout
+from simdist.pipelines import as_slices, episode_stats, locomotion_env, rollout
 from simdist.pipelines import train_resumable
 from simdist.recipes import simdist_quadruped as recipe
 from simdist.utils import load_memmap, save_memmap
@@ -54,7 +54,7 @@ def evaluate(cfg, world_model, domain: str, name: str) -> str:
     policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
     start = time.perf_counter()
     td = rollout(env, policy, cfg.episode_steps, desc=f"{name} in {domain}")
-    stats = progress_stats(td, env.base_env.observation_layout["command"].start)
+    stats = episode_stats(td, env.base_env.observation_layout)
     env.close()
     low, high = stats["ci_fraction"]
     return (f"| {name} | {domain} | {100 * stats['mean_fraction']:.0f}% [{100 * low:.0f}, "

@@ -37,7 +37,7 @@ import torch
 
 from simdist.envs import get_target
 from simdist.recipes import simdist_quadruped as recipe
-from simdist.pipelines import locomotion_env, progress_stats, rollout
+from simdist.pipelines import episode_stats, locomotion_env, rollout
 from simdist.pipelines.statistics import summarise, summarise_groups
 from simdist.utils import read_json
 
@@ -160,7 +160,7 @@ def main(argv=None):
     if args.prior:
         variants = [("prior", None), *variants]
     print(f"run {run} (seed {cfg.seed}), {cfg.episodes} episodes of {cfg.episode_steps} steps")
-    print("| variant | domain | % of commanded distance [95% CI] (IQM) | s |")
+    print("| variant | domain | % of commanded distance [95% CI] (IQM), on its back | s |")
     print("| --- | --- | --- | --- |")
     saved = {}
     for name, overrides in variants:
@@ -175,7 +175,7 @@ def main(argv=None):
             if overrides is None:
                 policy = PriorPolicy(policy)
             td = rollout(env, policy, cfg.episode_steps)
-            stats = progress_stats(td, env.base_env.observation_layout["command"].start)
+            stats = episode_stats(td, env.base_env.observation_layout)
             env.close()
             saved.setdefault(name, {})[domain] = [float(f) for f in stats["fraction"]]
             if args.save_json:  # rewritten after every evaluation: a killed run keeps its rows
@@ -187,7 +187,8 @@ def main(argv=None):
                 extra = (f" predicted {c['predicted']:.3f}, paid {c['paid']:.3f}, "
                          f"corr {c['correlation']:.2f} |")
             print(f"| {name} {overrides or ''} | {domain} | {100 * stats['mean_fraction']:.0f}% "
-                  f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) | "
+                  f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}), "
+                  f"{sum(stats['upside_down'])}/{len(stats['fraction'])} on its back | "
                   f"{time.perf_counter() - start:.0f} |{extra}", flush=True)
             if against is not None:
                 diff, speeds = paired_rows(saved[name][domain], against)

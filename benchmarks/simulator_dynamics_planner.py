@@ -33,7 +33,7 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
 
 from simdist.envs import get_target
-from simdist.pipelines import locomotion_env, progress_stats, rollout
+from simdist.pipelines import episode_stats, locomotion_env, rollout
 from simdist.pipelines import SimulatorPlanningPolicy
 from simdist.recipes import simdist_quadruped as recipe
 from simdist.utils import save_memmap, write_json_atomic
@@ -82,7 +82,7 @@ def main(argv=None):
     variants = [parse_variant(v) for v in (args.variant or ["recipe:"])]
     print(f"run {run} (seed {cfg.seed}), {cfg.episodes} episodes of {cfg.episode_steps} "
           "steps, simulator dynamics + pretrained heads")
-    print("| variant | domain | % of commanded distance [95% CI] (IQM) | s |")
+    print("| variant | domain | % of commanded distance [95% CI] (IQM), on its back | s |")
     print("| --- | --- | --- | --- |")
     saved = {}
     for name, overrides in variants:
@@ -96,14 +96,15 @@ def main(argv=None):
             policy = SimulatorPlanningPolicy(agent, env.base_env.sims, planner,
                                              spec.space.low[0], spec.space.high[0], cfg.seed)
             td = rollout(env, policy, cfg.episode_steps, desc=f"{name} in {domain}")
-            stats = progress_stats(td, env.base_env.observation_layout["command"].start)
+            stats = episode_stats(td, env.base_env.observation_layout)
             env.close()
             if args.save_rollouts:
                 save_memmap(td.select(*recipe.TARGET_KEYS, ("next", "forward_progress")),
                             Path(args.save_rollouts) / f"{name}_{domain}")
             low, high = stats["ci_fraction"]
             print(f"| {name} {overrides or ''} | {domain} | {100 * stats['mean_fraction']:.0f}% "
-                  f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}) | "
+                  f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}), "
+                  f"{sum(stats['upside_down'])}/{len(stats['fraction'])} on its back | "
                   f"{time.perf_counter() - start:.0f} |", flush=True)
             if args.save_json:  # rewritten after each evaluation: a killed run keeps the rest
                 saved.setdefault(name, {})[domain] = {"overrides": overrides, **stats}

@@ -9,7 +9,8 @@ from simdist.envs import get_target
 from simdist.experts import Expert
 from simdist.modules import SimDistWorldModel
 from simdist.modules.planner import PlannerConfig
-from simdist.pipelines import as_slices, locomotion_env, progress_stats, rollout
+from simdist.pipelines import (as_slices, episode_stats, locomotion_env, progress_stats,
+                               rollout)
 
 
 def test_the_chain_runs_and_finetuning_touches_only_dynamics(tmp_path):
@@ -59,6 +60,7 @@ def test_progress_stats_mark_the_episodes_that_had_the_robot_on_its_back():
     td["next", "observation"][0, 3, gravity_z] = -0.7  # on its back after the last step
     stats = progress_stats(td, layout["command"].start, gravity_z)
     assert stats["upside_down"] == [True, True, False]
+    assert episode_stats(td, layout) == stats  # the indices read from the layout
     assert "upside_down" not in progress_stats(td, layout["command"].start)
     td["is_init"][2, 2] = True  # a world reset mid-row: progress would mix two episodes
     with pytest.raises(ValueError, match="one episode per row"):

@@ -3,7 +3,8 @@
 from simdist.pipelines.control import (EpisodeReplay, control_env, dreamer_keys,
                                        evaluate_returns, returns_stats)
 from simdist.pipelines.evaluate_agent import evaluate_agent, record_video
-from simdist.pipelines.locomotion import as_slices, locomotion_env, progress_stats, rollout
+from simdist.pipelines.locomotion import (as_slices, episode_stats, locomotion_env,
+                                          progress_stats, rollout)
 from simdist.pipelines.online_dreamer import (OnlineConfig, load_episodes, snapshot_paths,
                                               train_dreamer_online)
 from simdist.pipelines.policy_finetune import OfflineSAC, OfflineSACConfig
@@ -14,6 +15,6 @@ from simdist.pipelines.resumable import mean_metrics, stage_seed, train_resumabl
 __all__ = ["EpisodeReplay", "control_env", "dreamer_keys", "evaluate_returns", "returns_stats",
            "OnlineConfig", "load_episodes", "snapshot_paths", "train_dreamer_online",
            "as_slices", "locomotion_env",
-           "progress_stats", "rollout", "OfflineSAC", "OfflineSACConfig", "mean_metrics", "stage_seed", "train_resumable", "weights",
+           "episode_stats", "progress_stats", "rollout", "OfflineSAC", "OfflineSACConfig", "mean_metrics", "stage_seed", "train_resumable", "weights",
            "evaluate_agent", "record_video", "SimulatorDynamics", "SimulatorPlanningPolicy",
            "ReferencePolicy"]

@@ -89,6 +89,13 @@ def progress_stats(td: TensorDict, command_index: int, gravity_z_index: int | No
             "return": float(td["next", "reward"].sum(1).mean())}
 
 
+def episode_stats(td: TensorDict, layout) -> dict:
+    """:func:`progress_stats` with the indices read from the env's observation layout
+    (``env.base_env.observation_layout``), so every evaluation also marks the episodes
+    that had the robot on its back."""
+    return progress_stats(td, layout["command"].start, layout["gravity"].start + 2)
+
+
 def as_slices(td: TensorDict, slice_len: int, batch_slices: int) -> TensorDictReplayBuffer:
     """An in-memory buffer of ``[episodes, steps]`` data that samples episode-safe slices.
 

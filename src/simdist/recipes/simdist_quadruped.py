@@ -49,8 +49,8 @@ from simdist.objectives import ProbeLoss
 from simdist.objectives.simdist_pretrain import latent_prediction_skill
 from simdist.modules.planner import PlannerConfig
 from simdist.modules.simdist_model import DYNAMICS_RESIDUALS
-from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, locomotion_env,
-                               mean_metrics, progress_stats, rollout, stage_seed,
+from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, episode_stats,
+                               locomotion_env, mean_metrics, rollout, stage_seed,
                                train_resumable)
 from simdist.pipelines.evaluate_agent import record_video
 from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
@@ -409,9 +409,8 @@ def evaluate(cfg: Config, target: str, policy, primers=(), seed_offset: int = 10
     """
     env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
                          cfg.seed + seed_offset, primers=primers, task=cfg.task)
-    layout = env.base_env.observation_layout
-    stats = progress_stats(rollout(env, policy, cfg.episode_steps, desc=f"evaluate in {target}"),
-                           layout["command"].start, layout["gravity"].start + 2)
+    stats = episode_stats(rollout(env, policy, cfg.episode_steps, desc=f"evaluate in {target}"),
+                          env.base_env.observation_layout)
     env.close()
     return stats
 
@@ -633,8 +632,7 @@ def evaluate_planner(cfg: Config, agent: SimDistAgent, target: str,
     spec = env.action_spec
     policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
     td = rollout(env, policy, cfg.episode_steps, desc=f"evaluate planner in {target}")
-    layout = env.base_env.observation_layout
-    stats = progress_stats(td, layout["command"].start, layout["gravity"].start + 2)
+    stats = episode_stats(td, env.base_env.observation_layout)
     env.close()
     return stats, td
 
