@@ -21,6 +21,12 @@ rolls the dynamics open-loop on the recorded actions and prints, in 10-step bins
 predicted reward and the value head on the predicted latents beside the real reward and
 body-frame gravity z (pretrained dynamics and each ``--weights``).
 
+``bias`` asks how far off the predicted reward is where the robot stays up: from every
+10th step of each recorded episode that never tips over, for ``--horizon`` steps, it
+rolls the dynamics open-loop on the recorded actions and prints, per commanded speed, the
+real reward summed over the window, each model's prediction of it, the mean error (bias)
+and the correlation (pretrained dynamics and each ``--weights``).
+
 ``refit`` fits the value head (from its pretrained weights) to those returns on the
 pretrained dynamics' latents ``z^_{t+i}``, ``i = 0..H`` (as the pretraining loss does),
 then once more with each episode's bootstrap read from the fitted head instead of the
@@ -30,6 +36,8 @@ the new value head) for ``benchmarks/planner_variants.py --weights``.
     python benchmarks/value_labels.py audit --run RUN --data RUN/stages/round_2/data
     python benchmarks/value_labels.py foresee --run RUN --data RUN/stages/round_2/data \\
         --weights RUN/stages/round_2/simdist.pt --steps-before 80
+    python benchmarks/value_labels.py bias --run RUN --data RUN/stages/round_2/data \\
+        --weights RUN/stages/round_2/simdist.pt
     python benchmarks/value_labels.py refit --run RUN --base RUN/stages/round_2/simdist.pt \\
         --out refit.pt
     python benchmarks/planner_variants.py --run RUN --weights refit.pt --domains slippery_slope
@@ -217,6 +225,67 @@ def foresee(run: Path, folders: list[Path], weights: list[str], steps_before: in
             print(f"| {name} |" + "".join(f" {values[:, b:b + width].mean():{fmt}} |" for b in bins))
 
 
+def upright_windows(until: np.ndarray, is_init: np.ndarray, horizon: int, every: int = 10,
+                    first: int = 10) -> list[tuple[int, int]]:
+    """``(row, start)`` of windows of ``horizon`` steps, every ``every`` steps from ``first``,
+    in episodes that never tip over (``until`` infinite, from :func:`steps_until_tip`: not
+    only up over the window, which would let in the rearing before a fall), with no new
+    episode starting between the row's first step and the window's end (the encoder's
+    history is the episode's own).
+
+    Examples:
+        >>> until = np.full((2, 40), np.inf)
+        >>> is_init = np.zeros((2, 40), bool)
+        >>> is_init[1, 20] = True  # row 1 holds a second episode from step 20
+        >>> upright_windows(until, is_init, horizon=10, every=10, first=0)
+        [(0, 0), (0, 10), (0, 20), (0, 30), (1, 0), (1, 10)]
+    """
+    rows, steps = until.shape
+    return [(r, t) for r in range(rows) for t in range(first, steps - horizon + 1, every)
+            if np.isinf(until[r, t:t + horizon]).all() and not is_init[r, 1:t + horizon].any()]
+
+
+def bias(run: Path, folders: list[Path], weights: list[str], horizon: int) -> None:
+    cfg, agent, _ = _run(run)
+    _, pretrained = recipe.load_finished_run(run)
+    layout = recipe.observation_layout(cfg.task)
+    models = {"pretrained": agent.world_model}
+    models.update({w: recipe.load_agent(cfg, pretrained, w).world_model for w in weights})
+    for folder in folders:
+        td = load_memmap(folder)[:, :]
+        is_init = td["is_init"].reshape(td.shape).numpy()
+        until = steps_until_tip(td["next", "observation"][..., layout["gravity"].start + 2]
+                                .numpy(), is_init)
+        at = upright_windows(until, is_init, horizon)
+        if not at:
+            print(f"\n{folder}: no upright window of {horizon} steps")
+            continue
+        window = lambda x: torch.stack([x[r, t:t + horizon] for r, t in at])  # noqa: E731
+        real = window(td["next", "reward"].reshape(td.shape).float()).sum(1)
+        actions = window(td["action"].float())
+        speed = np.array([round(float(td["observation"][r, 0, layout["command"].start]), 6)
+                          for r, _ in at])
+        predicted = {}
+        for name, wm in models.items():
+            z = _encode(wm, td)
+            with torch.no_grad():
+                z0 = torch.stack([z[r, t] for r, t in at])
+                path = torch.cat([z0[:, None], wm.rollout(z0, actions)[:, :-1]], 1)
+                predicted[name] = wm.reward(path, actions).squeeze(-1).sum(1)
+        print(f"\n{folder}: {len(at)} windows of {horizon} steps in episodes that never tip; "
+              "reward summed over the window, real and predicted open-loop on the recorded "
+              "actions: mean (bias = predicted - real, correlation)")
+        print("| commanded speed | windows | real |" + "".join(f" {n} |" for n in predicted))
+        print("| --- | --- | --- |" + " --- |" * len(predicted))
+        for v in sorted(set(speed.tolist())):
+            m = torch.as_tensor(speed == v)
+            cells = "".join(
+                f" {p[m].mean():.2f} ({(p[m] - real[m]).mean():+.2f}, "
+                f"{np.corrcoef(p[m].numpy(), real[m].numpy())[0, 1]:.2f}) |"
+                for p in predicted.values())
+            print(f"| {v:g} m/s | {int(m.sum())} | {real[m].mean():.2f} |{cells}")
+
+
 def refit(run: Path, base: str | None, out: Path, iterations: int, updates: int,
           batch: int, lr: float, seed: int) -> None:
     cfg, agent, data = _run(run)
@@ -276,6 +345,13 @@ def main(argv=None):
     f.add_argument("--weights", nargs="*", default=[],
                    help="finetuned world-model weights to compare with the pretrained ones")
     f.add_argument("--steps-before", type=int, default=60)
+    b = sub.add_parser("bias", help="predicted against real reward where the robot stays up")
+    b.add_argument("--run", required=True, type=Path)
+    b.add_argument("--data", nargs="+", required=True, type=Path,
+                   help="memmap folders of recorded target episodes (a round's data)")
+    b.add_argument("--weights", nargs="*", default=[],
+                   help="finetuned world-model weights to compare with the pretrained ones")
+    b.add_argument("--horizon", type=int, default=20, help="window length (the plan's)")
     r = sub.add_parser("refit", help="fit the value head to the data's returns")
     r.add_argument("--run", required=True, type=Path)
     r.add_argument("--base", default=None,
@@ -292,6 +368,8 @@ def main(argv=None):
         audit(args.run, args.data)
     elif args.command == "foresee":
         foresee(args.run, args.data, args.weights, args.steps_before)
+    elif args.command == "bias":
+        bias(args.run, args.data, args.weights, args.horizon)
     else:
         refit(args.run, args.base, args.out, args.iterations, args.updates, args.batch,
               args.lr, args.seed)

@@ -40,3 +40,17 @@ def test_windows_before_tip_start_k_steps_before_and_fit_in_the_row():
     rows, _ = module.windows_before_tip(until, 4, 6, first=1)
     assert rows.tolist() == [0, 2]
     assert len(module.windows_before_tip(until, 4, 8, first=3)[0]) == 0
+
+
+def test_upright_windows_come_from_episodes_that_never_tip():
+    module = benchmark_module("value_labels")
+    z = np.ones((3, 30))
+    z[1, 15:] = -1.0  # tips at step 15: no window in an episode that tips
+    init = np.zeros((3, 30), dtype=bool)
+    init[:, 0] = True
+    init[2, 12] = True  # a new episode at step 12: no window may reach past it
+    until = module.steps_until_tip(z, init)
+    at = module.upright_windows(until, init, horizon=10, every=10, first=0)
+    assert at == [(0, 0), (0, 10), (0, 20), (2, 0)]
+    assert module.upright_windows(until, init, horizon=10, every=10, first=5) == [
+        (0, 5), (0, 15)]
