@@ -338,20 +338,20 @@ def main(argv=None):
     a.add_argument("--run", required=True, type=Path, help="a finished recipe output folder")
     a.add_argument("--data", nargs="*", default=[], type=Path,
                    help="memmap folders of recorded target episodes (a round's data)")
-    f = sub.add_parser("foresee", help="does the model predict a tip-over from the actions taken")
-    f.add_argument("--run", required=True, type=Path)
-    f.add_argument("--data", nargs="+", required=True, type=Path,
-                   help="memmap folders of recorded target episodes (a round's data)")
-    f.add_argument("--weights", nargs="*", default=[],
-                   help="finetuned world-model weights to compare with the pretrained ones")
-    f.add_argument("--steps-before", type=int, default=60)
-    b = sub.add_parser("bias", help="predicted against real reward where the robot stays up")
-    b.add_argument("--run", required=True, type=Path)
-    b.add_argument("--data", nargs="+", required=True, type=Path,
-                   help="memmap folders of recorded target episodes (a round's data)")
-    b.add_argument("--weights", nargs="*", default=[],
-                   help="finetuned world-model weights to compare with the pretrained ones")
-    b.add_argument("--horizon", type=int, default=20, help="window length (the plan's)")
+    def rollout_parser(name: str, summary: str):  # the open-loop commands' shared arguments
+        p = sub.add_parser(name, help=summary)
+        p.add_argument("--run", required=True, type=Path)
+        p.add_argument("--data", nargs="+", required=True, type=Path,
+                       help="memmap folders of recorded target episodes (a round's data)")
+        p.add_argument("--weights", nargs="*", default=[],
+                       help="finetuned world-model weights to compare with the pretrained ones")
+        return p
+
+    rollout_parser("foresee", "does the model predict a tip-over from the actions taken"
+                   ).add_argument("--steps-before", type=int, default=60)
+    rollout_parser("bias", "predicted against real reward where the robot stays up"
+                   ).add_argument("--horizon", type=int, default=20,
+                                  help="window length (the plan's)")
     r = sub.add_parser("refit", help="fit the value head to the data's returns")
     r.add_argument("--run", required=True, type=Path)
     r.add_argument("--base", default=None,
