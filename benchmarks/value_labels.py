@@ -122,6 +122,14 @@ def _encode(world_model, td, chunk: int = 64) -> torch.Tensor:
                           for i in range(0, td.shape[0], chunk)])
 
 
+def _open_loop(world_model, z: torch.Tensor, at, actions: torch.Tensor) -> torch.Tensor:
+    """The latents a step's reward is read from along ``actions`` (``[windows, steps,
+    action]``), rolled open-loop from the encoded latent ``z[row, start]`` of each
+    ``(row, start)`` in ``at``: the start's own latent, then the predicted ones."""
+    z0 = torch.stack([z[r, t] for r, t in at])
+    return torch.cat([z0[:, None], world_model.rollout(z0, actions)[:, :-1]], 1)
+
+
 def audit(run: Path, folders: list[Path]) -> None:
     cfg, agent, data = _run(run)
     wm, gamma = agent.world_model, cfg.planner().gamma
@@ -203,8 +211,7 @@ def foresee(run: Path, folders: list[Path], weights: list[str], steps_before: in
             with torch.no_grad():
                 for label, at in [("", tips), (", controls", pairs)][:1 + bool(pairs)]:
                     actions = take(td["action"].float(), at)
-                    z0 = torch.stack([z[r, t] for r, t in at])
-                    path = torch.cat([z0[:, None], wm.rollout(z0, actions)[:, :-1]], 1)
+                    path = _open_loop(wm, z, at, actions)
                     lines += [(f"{name}: reward predicted{label}",
                                wm.reward(path, actions).squeeze(-1), ".2f"),
                               (f"{name}: V on the predicted latents{label}",
@@ -269,8 +276,7 @@ def bias(run: Path, folders: list[Path], weights: list[str], horizon: int) -> No
         for name, wm in models.items():
             z = _encode(wm, td)
             with torch.no_grad():
-                z0 = torch.stack([z[r, t] for r, t in at])
-                path = torch.cat([z0[:, None], wm.rollout(z0, actions)[:, :-1]], 1)
+                path = _open_loop(wm, z, at, actions)
                 predicted[name] = wm.reward(path, actions).squeeze(-1).sum(1)
         print(f"\n{folder}: {len(at)} windows of {horizon} steps in episodes that never tip; "
               "reward summed over the window, real and predicted open-loop on the recorded "
@@ -338,6 +344,7 @@ def main(argv=None):
     a.add_argument("--run", required=True, type=Path, help="a finished recipe output folder")
     a.add_argument("--data", nargs="*", default=[], type=Path,
                    help="memmap folders of recorded target episodes (a round's data)")
+
     def rollout_parser(name: str, summary: str):  # the open-loop commands' shared arguments
         p = sub.add_parser(name, help=summary)
         p.add_argument("--run", required=True, type=Path)
