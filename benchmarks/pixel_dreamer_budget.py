@@ -1,9 +1,11 @@
-"""Does a pixel Dreamer baseline learn with more updates? (not a speed benchmark)
+"""Does a pixel baseline learn with more updates? (not a speed benchmark)
 
 Trains one of the TWIST recipe's pixel-Dreamer baselines (``recipes/twist_dmc.py``'s
 ``pixel_dreamer_stage``: the same agent, online loop, seeding and evaluation) with one
 update per ``--train-every`` agent steps instead of the recipe's 20, for ``--steps`` agent
-steps, then evaluates it twice: on the recipe's held-out scenes (held-out textures and
+steps, or with ``--agent sac`` its Asymmetric SAC baseline (``asymmetric_sac_stage``; the
+recipe: one update of 128 transitions per 4 steps, one image) with ``--frames`` stacked
+images and ``--batch`` transitions per update, then evaluates it twice: on the recipe's held-out scenes (held-out textures and
 camera jitter, as in the recipe's table) and on dm_control's own scene (no visual
 randomisation: the training scene of the no-DR Dreamer). The recipe's two blind references
 (zero and uniform random actions) say what a return is worth: on cartpole-balance doing
@@ -16,6 +18,7 @@ from the stored episodes and checkpoint (one result file per budget).
 Usage:
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000          # no DR
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 --dr     # + DR
+    python benchmarks/pixel_dreamer_budget.py --agent sac --frames 3 --steps 12000   # SAC
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
 """
 
@@ -29,6 +32,7 @@ from pathlib import Path
 import torch
 
 from simdist.agents.checkpoint import load_agent
+from simdist.envs import VisualRandomisation
 from simdist.pipelines import evaluate_returns
 from simdist.recipes import twist_dmc as recipe
 
@@ -41,30 +45,54 @@ def main(argv=None) -> None:
     parser.add_argument("--train-every", type=int, default=4,
                         help="one update per this many agent steps (the recipe's default: 20)")
     parser.add_argument("--dr", action="store_true",
-                        help="train on the recipe's visually randomised scenes (Dreamer + DR)")
+                        help="train on the recipe's visually randomised scenes (+ DR)")
+    parser.add_argument("--agent", choices=["dreamer", "sac"], default="dreamer",
+                        help="a pixel Dreamer, or the Asymmetric SAC baseline")
+    parser.add_argument("--frames", type=int, default=1,
+                        help="SAC: stacked images the actor reads (the recipe's sac_frames)")
+    parser.add_argument("--batch", type=int, default=128,
+                        help="SAC: transitions per update (the recipe's sac_batch)")
     parser.add_argument("--out", default="outputs/pixel_dreamer_budget")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
                         help="the recipe preset whose Dreamer settings to use")
     args = parser.parse_args(argv)
-    if args.train_every < 1 or args.steps < 1:
-        parser.error("need --train-every >= 1 and --steps >= 1")
+    if min(args.train_every, args.steps, args.frames, args.batch) < 1:
+        parser.error("need --train-every, --steps, --frames and --batch >= 1")
+    if args.agent == "dreamer" and (args.frames != 1 or args.batch != 128):
+        parser.error("--frames and --batch are the SAC's (--agent sac)")
     torch.set_num_threads(args.threads)
+    sac = {"sac_train_every": args.train_every, "sac_frames": args.frames,
+           "sac_batch": args.batch} if args.agent == "sac" else {}
     cfg = recipe.Config(**{**recipe.PRESETS[args.preset], "tasks": [args.task],
                            "seeds": [args.seed], "env_steps": args.steps,
                            "pixel_train_every": args.train_every, "output_dir": args.out,
-                           "teacher_snapshots": 0})  # no teacher here: any --steps
-    name = "dreamer_dr" if args.dr else "dreamer_no_dr"
-    stage_dir = Path(args.out) / f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
+                           "teacher_snapshots": 0, **sac})  # no teacher here: any --steps
     start = time.perf_counter()
-    result = recipe.pixel_dreamer_stage(cfg, args.task, args.seed,
-                                        recipe.PIXEL_DREAMERS[name][1], stage_dir)
-    agent = load_agent(result["agent"])
-    own_scene = evaluate_returns(args.task, agent.policy(explore=False), agent.make_primer(),
-                                 args.seed + 10_000, cfg.eval_episodes, cfg.eval_steps,
-                                 pixels=True, visual=None)
+    if args.agent == "sac":
+        name = "asymmetric_sac" if args.dr else "asymmetric_sac_no_dr"
+        method = f"Asymmetric SAC{' + DR' if args.dr else ', no DR'}, {args.frames} frame(s)"
+        stage_dir = Path(args.out) / (f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
+                                      f"_frames{args.frames}_batch{args.batch}")
+        result = recipe.asymmetric_sac_stage(
+            cfg, args.task, args.seed, stage_dir,
+            visual=VisualRandomisation.training() if args.dr else None)
+    else:
+        name = "dreamer_dr" if args.dr else "dreamer_no_dr"
+        method = recipe.PIXEL_DREAMERS[name][0]
+        stage_dir = Path(args.out) / f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
+        result = recipe.pixel_dreamer_stage(cfg, args.task, args.seed,
+                                            recipe.PIXEL_DREAMERS[name][1], stage_dir)
+    own_scene = result.get("own_scene")
+    if own_scene is None:  # trained with DR: how does it do on dm_control's plain scene?
+        agent = load_agent(result["agent"])
+        own_scene = evaluate_returns(args.task, agent.policy(explore=False),
+                                     agent.make_primer(), args.seed + 10_000,
+                                     cfg.eval_episodes, cfg.eval_steps, pixels=True,
+                                     visual=None, camera_id=cfg.camera_id)
     references = recipe.references_stage(cfg, args.task, args.seed)
-    summary = {"method": recipe.PIXEL_DREAMERS[name][0], "steps": args.steps,
+    summary = {"method": method, "steps": args.steps, "frames": args.frames,
+               "batch": args.batch if args.agent == "sac" else None,
                "train_every": args.train_every, "updates": result["updates"],
                "heldout_scenes": {k: result[k] for k in ("mean", "std", "returns")},
                "own_scene": own_scene,
@@ -72,7 +100,7 @@ def main(argv=None) -> None:
                "training_returns": result["episode_returns"], "last": result["last"],
                "seconds": time.perf_counter() - start}
     (stage_dir / f"result_{args.steps}.json").write_text(json.dumps(summary, indent=1))
-    print(f"{summary['method']}, {summary['updates']} updates: held-out scenes "
+    print(f"{method}, {summary['updates']} updates: held-out scenes "
           f"{result['mean']:.0f} +- {result['std']:.0f}, dm_control's scene "
           f"{own_scene['mean']:.0f} +- {own_scene['std']:.0f}; zero action "
           f"{summary['references']['zero']:.0f}, random {summary['references']['uniform']:.0f}")

@@ -99,3 +99,58 @@ def test_saved_file_rebuilds_the_same_policy_and_refuses_other_classes(tmp_path)
     torch.save(state, tmp_path / "bad.pt")
     with pytest.raises(CorruptCheckpointError, match="do not fit"):
         load_agent(tmp_path / "bad.pt")
+
+
+def test_stacked_transitions_hold_the_last_frames_oldest_first_and_stay_in_one_episode():
+    batch = _slices(B=2, T=5)
+    batch["is_init"][1, 3] = True  # slice 1: an episode starts at step 3
+    t = transitions_from_slices(batch, frames=3)
+    # slice 0 acts at steps 3 and 4; slice 1's stacks would reach back across step 3
+    assert t.shape == (2,) and t["pixels"].shape == (2, 3, 64, 64, 3)
+    nxt = batch["next", "pixels"][0]
+    torch.testing.assert_close(t["pixels"][0], nxt[0:3])
+    torch.testing.assert_close(t["next", "pixels"][0], nxt[1:4])
+    torch.testing.assert_close(t["pixels"][1], nxt[1:4])
+    torch.testing.assert_close(t["action"], batch["action"][0, 3:5])
+    torch.testing.assert_close(t["state"], batch["next", "state"][0, 2:4])
+    torch.testing.assert_close(t["next", "state"], batch["next", "state"][0, 3:5])
+    torch.testing.assert_close(t["next", "reward"], batch["next", "reward"][0, 3:5])
+    with pytest.raises(ValueError, match="4"):
+        transitions_from_slices(batch[:, :3], frames=3)
+    with pytest.raises(ValueError, match="frames"):
+        AsymmetricSACConfig(frames=0)
+
+
+def test_stacked_actor_reads_motion_carries_its_history_and_restarts_it_each_episode():
+    from simdist.pipelines import control_env
+
+    agent = AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16, frames=3))
+    agent.update(_slices(T=4))
+    policy = agent.policy(explore=False)
+    assert agent.policy(explore=False).in_keys == ["pixels", "is_init", ("agent", "frames")]
+    frames = torch.randint(0, 255, (4, 64, 64, 3), dtype=torch.uint8)
+    td = TensorDict({"pixels": frames[2], "is_init": torch.ones(1, dtype=torch.bool),
+                     "agent": {"frames": frames[:2]}}, [])
+    out = policy(td.clone())
+    # at an episode's start the stale history is replaced by the current image
+    torch.testing.assert_close(out["next", "agent", "frames"], frames[2].expand(2, 64, 64, 3))
+    td["is_init"][:] = False
+    out = policy(td.clone())
+    torch.testing.assert_close(out["next", "agent", "frames"], frames[1:3])
+    # the action is the actor's on the stack, oldest first
+    with agent.loss.actor_network_params.to_module(agent.loss.actor_network):
+        from torchrl.envs.utils import ExplorationType, set_exploration_type
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            direct = agent.loss.actor_network(TensorDict({"pixels": frames[:3]}, []))["action"]
+    torch.testing.assert_close(out["action"], direct)
+    # a real env with the primer: the history rolls through an episode
+    env = control_env("cartpole-balance", 0, pixels=True, max_episode_steps=4,
+                      primer=agent.make_primer())
+    rollout = env.rollout(4, policy)
+    history, pixels = rollout["next", "agent", "frames"], rollout["pixels"]
+    torch.testing.assert_close(history[0], pixels[0].expand(2, 64, 64, 3))
+    torch.testing.assert_close(history[1], pixels[:2])
+    torch.testing.assert_close(history[2], pixels[1:3])
+    torch.testing.assert_close(rollout["agent", "frames"][1:], history[:-1])  # carried
+    env.close()
+    assert AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16)).make_primer() is None

@@ -17,7 +17,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictModuleBase
 from torch import nn
-from torchrl.data import Bounded
+from torchrl.data import Bounded, Composite, Unbounded
+from torchrl.envs import TensorDictPrimer
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
 from torchrl.objectives import SACLoss, SoftUpdate
@@ -46,15 +47,25 @@ class AsymmetricSACConfig:
     tau: float = 0.005
     alpha_init: float = 0.1
     shift_pad: int = 4
+    # the actor reads the last `frames` images stacked on the channel axis (DrQ: 3), so
+    # that it can see motion: one image holds no velocity. 1: the current image alone.
+    frames: int = 1
+
+    def __post_init__(self):
+        if self.frames < 1:
+            raise ValueError(f"frames must be >= 1, got {self.frames}")
 
 
-def transitions_from_slices(batch: TensorDictBase) -> TensorDict:
+def transitions_from_slices(batch: TensorDictBase, frames: int = 1) -> TensorDict:
     """``[B, T]`` slices of stored steps (only ``("next", ...)`` observations are kept)
-    -> ``[B * (T - 1)]`` transitions ``(o_t, s_t, a_t, r, o_{t+1}, s_{t+1}, done)``.
+    -> ``[N]`` transitions ``(o_t, s_t, a_t, r, o_{t+1}, s_{t+1}, done)``.
 
     Step ``t``'s observation is step ``t - 1``'s ``next`` one, so each slice gives
-    ``T - 1`` transitions; a step that starts an episode (``is_init``) cannot have its
-    observation rebuilt this way and is dropped.
+    ``T - frames`` transitions; one whose frames would reach back past the start of its
+    episode (an ``is_init`` step among the last ``frames``) cannot be rebuilt this way and
+    is dropped. With ``frames = k > 1`` the pixels of a transition are the last ``k``
+    observations, ``[N, k, H, W, C]`` oldest first (``o_{t+1}``'s stack is ``o_t``'s shifted
+    by one); the state stays the current step's.
 
     Examples:
         >>> b = TensorDict({"action": torch.arange(6.).reshape(2, 3, 1),
@@ -66,19 +77,47 @@ def transitions_from_slices(batch: TensorDictBase) -> TensorDict:
         >>> t = transitions_from_slices(b)
         >>> t["state"].flatten().tolist(), t["action"].flatten().tolist()
         ([10.0, 11.0, 13.0, 14.0], [1.0, 2.0, 4.0, 5.0])
+        >>> t = transitions_from_slices(b, frames=2)
+        >>> t["pixels"].shape, t["state"].flatten().tolist(), t["action"].flatten().tolist()
+        (torch.Size([2, 2, 64, 64, 3]), [11.0, 14.0], [2.0, 5.0])
     """
-    if batch.ndim != 2 or batch.shape[1] < 2:
-        raise ValueError(f"need [slices, steps >= 2] slices, got batch shape {batch.shape}")
-    nxt = batch["next"]
-    terminated = nxt["terminated"][:, 1:].bool()
+    if frames < 1:
+        raise ValueError(f"frames must be >= 1, got {frames}")
+    if batch.ndim != 2 or batch.shape[1] < frames + 1:
+        raise ValueError(f"need [slices, steps >= {frames + 1}] slices for {frames} frame(s), "
+                         f"got batch shape {batch.shape}")
+    nxt, steps = batch["next"], batch.shape[1] - frames
+    # window j holds observations j .. j + frames - 1 (the "next" ones of those steps)
+    # and acts at step j + frames
+    windows = torch.arange(frames)[None, :] + torch.arange(steps)[:, None]  # [steps, k]
+    pixels, now = nxt["pixels"], windows[:, -1]
+    terminated = nxt["terminated"][:, now + 1].bool()
+    if frames == 1:  # the single-frame actor reads [H, W, C] images
+        obs, next_obs = pixels[:, now], pixels[:, now + 1]
+    else:
+        obs, next_obs = pixels[:, windows], pixels[:, windows + 1]
     out = TensorDict({
-        "pixels": nxt["pixels"][:, :-1], "state": nxt["state"][:, :-1],
-        "action": batch["action"][:, 1:],
-        "next": {"pixels": nxt["pixels"][:, 1:], "state": nxt["state"][:, 1:],
-                 "reward": nxt["reward"][:, 1:], "terminated": terminated,
-                 "done": terminated.clone()}}, [batch.shape[0], batch.shape[1] - 1])
-    keep = ~batch["is_init"][:, 1:].reshape(out.shape).bool()
+        "pixels": obs, "state": nxt["state"][:, now],
+        "action": batch["action"][:, now + 1],
+        "next": {"pixels": next_obs, "state": nxt["state"][:, now + 1],
+                 "reward": nxt["reward"][:, now + 1], "terminated": terminated,
+                 "done": terminated.clone()}}, [batch.shape[0], steps])
+    init = batch["is_init"].reshape(batch.shape).bool()
+    keep = ~init[:, windows + 1].any(-1)  # none of steps j + 1 .. j + frames starts an episode
     return out[keep]
+
+
+class StackedFrames(nn.Module):
+    """``[..., k, H, W, C]`` frames -> ``[..., H, W, k * C]`` (one image of stacked channels).
+
+    Examples:
+        >>> StackedFrames()(torch.zeros(2, 3, 64, 64, 3)).shape
+        torch.Size([2, 64, 64, 9])
+    """
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        moved = frames.movedim(-4, -2)  # [..., H, W, k, C]
+        return moved.reshape(*moved.shape[:-2], moved.shape[-2] * moved.shape[-1])
 
 
 class AsymmetricSACAgent(ckpt_format.LoadableAgent):
@@ -113,8 +152,10 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
     def __init__(self, state_dim: int, action_dim: int,
                  config: AsymmetricSACConfig = AsymmetricSACConfig()):
         self.config, self.state_dim, self.action_dim = config, state_dim, action_dim
-        encoder = PixelEncoder(config.depth, norm="layer", input_norm="image")
-        net = nn.Sequential(encoder, MLP(in_features=encoder.embed_dim,
+        encoder = PixelEncoder(config.depth, norm="layer", input_norm="image",
+                               channels=3 * config.frames)
+        stack = [StackedFrames()] if config.frames > 1 else []
+        net = nn.Sequential(*stack, encoder, MLP(in_features=encoder.embed_dim,
                                          out_features=2 * action_dim,
                                          num_cells=[config.hidden], activation_class=nn.ELU),
                             NormalParamExtractor(scale_mapping="biased_softplus_1.0",
@@ -131,11 +172,13 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
         self.loss.make_value_estimator(gamma=config.gamma)
         self.updater = SoftUpdate(self.loss, tau=config.tau)
         self.optim = torch.optim.Adam(self.loss.parameters(), lr=config.lr)
-        self.shift = RandomShift(config.shift_pad, "frame") if config.shift_pad else None
+        # one shift per stack of frames (DrQ), so the motion between them stays the camera's
+        per = "frame" if config.frames == 1 else "sequence"
+        self.shift = RandomShift(config.shift_pad, per) if config.shift_pad else None
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One SAC step on the transitions inside ``[B, T]`` slices."""
-        data = transitions_from_slices(batch)
+        """One SAC step on the transitions inside ``[B, T]`` slices (``T > frames``)."""
+        data = transitions_from_slices(batch, self.config.frames)
         if self.shift is not None:  # the actor's images only; the critic reads the state
             data.set("pixels", self.shift(data["pixels"]))
             data.set(("next", "pixels"), self.shift(data["next", "pixels"]))
@@ -152,10 +195,16 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
         """Pixels -> action with the trained actor (a sample when ``explore``, else the
         distribution's deterministic action)."""
         check_unit_box(action_spec)
-        return AsymmetricSACPolicy(self.loss, explore)
+        return AsymmetricSACPolicy(self.loss, explore, self.config.frames)
 
-    def make_primer(self):
-        return None  # the actor is memoryless: nothing to carry between steps
+    def make_primer(self, image_size: int = 64) -> TensorDictPrimer | None:
+        """The env's primer for the previous ``frames - 1`` images (``("agent",
+        "frames")``); ``None`` for a single-frame actor, which carries nothing."""
+        if self.config.frames == 1:
+            return None
+        return TensorDictPrimer(Composite({"agent": Composite({"frames": Unbounded(
+            (self.config.frames - 1, image_size, image_size, 3), dtype=torch.uint8)})}),
+            default_value=0, expand_specs=True)
 
     def state_dict(self) -> dict:
         return {"loss": self.loss.state_dict(), "optim": self.optim.state_dict()}
@@ -212,16 +261,41 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
 
 
 class AsymmetricSACPolicy(TensorDictModuleBase):
-    """The actor with ``SACLoss``'s trained parameters swapped in (the loss owns them)."""
+    """The actor with ``SACLoss``'s trained parameters swapped in (the loss owns them).
 
-    def __init__(self, loss: SACLoss, explore: bool):
+    With ``frames = k > 1`` it keeps the previous ``k - 1`` images in ``("agent",
+    "frames")`` (the env needs :meth:`AsymmetricSACAgent.make_primer`); at an episode's
+    first step (``is_init``) the history is the current image repeated.
+    """
+
+    def __init__(self, loss: SACLoss, explore: bool, frames: int = 1):
         super().__init__()
-        self.loss, self.explore = loss, explore
-        self.in_keys, self.out_keys = ["pixels"], ["action"]
+        self.loss, self.explore, self.frames = loss, explore, frames
+        history = [("agent", "frames")] if frames > 1 else []
+        self.in_keys = ["pixels", *(["is_init"] if history else []), *history]
+        self.out_keys = ["action", *[("next", *k) for k in history]]
+
+    def _stack(self, td: TensorDictBase) -> TensorDictBase:
+        pixels = td.get("pixels")
+        history = td.get(("agent", "frames"), None)
+        is_init = td.get("is_init", None)
+        if history is None or is_init is None:
+            raise KeyError(f"a {self.frames}-frame actor needs 'is_init' and ('agent', "
+                           "'frames'): build the env with AsymmetricSACAgent.make_primer() "
+                           "and torchrl.envs.InitTracker()")
+        repeated = pixels.unsqueeze(-4).expand(*pixels.shape[:-3], self.frames - 1,
+                                               *pixels.shape[-3:])
+        start = is_init.reshape(*pixels.shape[:-3], 1, 1, 1, 1).bool()
+        history = torch.where(start, repeated, history.to(pixels.dtype))
+        stack = torch.cat([history, pixels.unsqueeze(-4)], -4)
+        td.set(("next", "agent", "frames"), stack[..., 1:, :, :, :])
+        return td.empty().set("pixels", stack)
 
     @torch.no_grad()
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         mode = ExplorationType.RANDOM if self.explore else ExplorationType.DETERMINISTIC
+        actor_in = td if self.frames == 1 else self._stack(td)
         with set_exploration_type(mode), \
                 self.loss.actor_network_params.to_module(self.loss.actor_network):
-            return self.loss.actor_network(td)
+            out = self.loss.actor_network(actor_in)
+        return td if out is td else td.set("action", out.get("action"))

@@ -70,6 +70,8 @@ class PixelEncoder(nn.Module):
             a global colour or brightness shift before the first convolution.
         arch: ``"dreamer"`` or ``"keypoints"``.
         keypoints: number of spatial-softmax keypoints (``arch="keypoints"`` only).
+        channels: channels of one input image (3: RGB; ``3 * k`` for ``k`` RGB frames
+            stacked on the channel axis, as a memoryless pixel actor reads them).
 
     Examples:
         >>> enc = PixelEncoder(depth=8)
@@ -88,7 +90,8 @@ class PixelEncoder(nn.Module):
     ARCHS = ("dreamer", "keypoints")
 
     def __init__(self, depth: int = 32, image_size: int = 64, norm: str | None = None,
-                 input_norm: str = "fixed", arch: str = "dreamer", keypoints: int = 32):
+                 input_norm: str = "fixed", arch: str = "dreamer", keypoints: int = 32,
+                 channels: int = 3):
         super().__init__()
         if image_size != 64:
             raise ValueError(f"PixelEncoder expects 64x64 images, got image_size={image_size}")
@@ -98,14 +101,16 @@ class PixelEncoder(nn.Module):
             raise ValueError(f"input_norm must be one of {self.INPUT_NORMS}, got {input_norm!r}")
         if arch not in self.ARCHS:
             raise ValueError(f"arch must be one of {self.ARCHS}, got {arch!r}")
-        if depth < 1 or keypoints < 1:
-            raise ValueError(f"depth and keypoints must be >= 1, got {depth}, {keypoints}")
+        if depth < 1 or keypoints < 1 or channels < 1:
+            raise ValueError(f"depth, keypoints and channels must be >= 1, got {depth}, "
+                             f"{keypoints}, {channels}")
         self.image_size, self.norm, self.input_norm = image_size, norm, input_norm
-        self.arch, self.keypoints = arch, keypoints
+        self.arch, self.keypoints, self.channels = arch, keypoints, channels
         if arch == "keypoints":
-            self.net, self.embed_dim = _keypoint_net(depth, norm, keypoints), 2 * keypoints
+            self.net = _keypoint_net(depth, norm, keypoints, channels)
+            self.embed_dim = 2 * keypoints
             return
-        layers, channels = [], 3
+        layers = []
         for i in range(4):
             layers.append(nn.Conv2d(channels, depth * 2**i, 4, stride=2, bias=norm is None))
             if norm == "layer":
@@ -116,7 +121,7 @@ class PixelEncoder(nn.Module):
         self.embed_dim = channels * 2 * 2
 
     def forward(self, pixels: torch.Tensor) -> torch.Tensor:
-        check_last_dims("pixels", pixels, (self.image_size, self.image_size, 3))
+        check_last_dims("pixels", pixels, (self.image_size, self.image_size, self.channels))
         lead = pixels.shape[:-3]
         x = pixels.reshape(-1, *pixels.shape[-3:]).permute(0, 3, 1, 2)
         x = x.float() / 255.0 - 0.5 if pixels.dtype == torch.uint8 else x.float()
@@ -126,8 +131,9 @@ class PixelEncoder(nn.Module):
         return self.net(x).reshape(*lead, self.embed_dim)
 
 
-def _keypoint_net(depth: int, norm: str | None, keypoints: int) -> nn.Sequential:
-    layers, channels = [], 3
+def _keypoint_net(depth: int, norm: str | None, keypoints: int,
+                  channels: int = 3) -> nn.Sequential:
+    layers = []
     for stride in (2, 2, 1):  # 64 -> 32 -> 16 -> 16
         layers.append(nn.Conv2d(channels, 2 * depth, 3, stride=stride, padding=1,
                                 bias=norm is None))

@@ -217,6 +217,9 @@ class Config:
     # sac_train_every agent steps (an update costs about a tenth of a pixel-Dreamer one)
     sac_train_every: int = 4
     sac_batch: int = 128
+    # the SAC actor reads this many stacked images (AsymmetricSACConfig.frames; 1: the
+    # current image alone, which holds no velocity)
+    sac_frames: int = 1
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
     critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
@@ -257,7 +260,7 @@ class Config:
               f"unknown size {self.model_size!r}; valid: {sorted(RSSM_SIZES)}")
         check_positive(self, "env_steps", "train_every", "pixel_train_every", "episode_steps",
                        "slice_len", "slices", "student_slice_len", "student_slices", "horizon",
-                       "sac_train_every", "sac_batch",
+                       "sac_train_every", "sac_batch", "sac_frames",
                        "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
                        "actor_lr", "critic_lr", "jobs", "teacher_select_episodes")
         unknown = [name for name in self.students if name not in STUDENTS]
@@ -329,9 +332,10 @@ class Config:
                             slices=self.slices)
 
     def sac_online(self) -> OnlineConfig:
-        """The Asymmetric SAC's budget: slices of 2 steps give one transition each."""
+        """The Asymmetric SAC's budget: slices of ``sac_frames + 1`` steps give one
+        transition each."""
         return dataclasses.replace(self.online(pixels=True), train_every=self.sac_train_every,
-                                   slice_len=2, slices=self.sac_batch)
+                                   slice_len=self.sac_frames + 1, slices=self.sac_batch)
 
     def dreamer(self) -> DreamerConfig:
         return DreamerConfig(size=self.model_size, horizon=self.horizon,
@@ -821,21 +825,28 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
             "last": mean_metrics(out["history"])}
 
 
-def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
-    """TWIST's model-free baseline: SAC whose actor sees DR pixels and whose critic sees
-    the privileged state, trained online for the pixel Dreamers' environment steps."""
+def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path,
+                         visual=VisualRandomisation.training()) -> dict:
+    """TWIST's model-free baseline: SAC whose actor sees DR pixels (``visual``; ``None``:
+    dm_control's own scene) and whose critic sees the privileged state, trained online for
+    the pixel Dreamers' environment steps."""
     torch.manual_seed(seed)
     agent = AsymmetricSACAgent(*state_dim(task), AsymmetricSACConfig(
-        depth=RSSM_SIZES[cfg.model_size]["depth"], lr=cfg.critic_lr))
-    env = control_env(task, seed, pixels=True, visual=VisualRandomisation.training(),
-                      max_episode_steps=cfg.episode_steps, camera_id=cfg.camera_id)
+        depth=RSSM_SIZES[cfg.model_size]["depth"], lr=cfg.critic_lr, frames=cfg.sac_frames))
+    env = control_env(task, seed, pixels=True, visual=visual,
+                      max_episode_steps=cfg.episode_steps, camera_id=cfg.camera_id,
+                      primer=agent.make_primer())
     out = train_dreamer_online(agent, env, cfg.sac_online(), stage_dir,
                                dreamer_keys("pixels", "state"), desc=stage_dir.name,
                                seed=stage_seed(seed, stage_dir.name),
                                logger=make_logger(cfg.logger, cfg.output_dir))
     env.close()
     agent.save(stage_dir / "sac_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
-    result = evaluate(cfg, task, seed, agent.policy(explore=False), None, pixels=True)
+    policy = agent.policy(explore=False)
+    result = evaluate(cfg, task, seed, policy, agent.make_primer(), pixels=True)
+    if visual is None:  # also where it trained (dm_control's scene): did it learn at all?
+        result["own_scene"] = evaluate(cfg, task, seed, policy, agent.make_primer(),
+                                       pixels=True, own_scene=True)
     return {**result, "agent": str(stage_dir / "sac_agent.pt"),
             "checkpoint": str(stage_dir / "agent.pt"),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
