@@ -5,10 +5,10 @@ Trains one of the TWIST recipe's pixel-Dreamer baselines (``recipes/twist_dmc.py
 update per ``--train-every`` agent steps instead of the recipe's 20, for ``--steps`` agent
 steps, or with ``--agent sac`` its Asymmetric SAC baseline (``asymmetric_sac_stage``; the
 recipe: one update of 128 transitions per 4 steps, one image) with ``--frames`` stacked
-images and ``--batch`` transitions per update, then evaluates it twice: on the recipe's held-out scenes (held-out textures and
-camera jitter, as in the recipe's table) and on dm_control's own scene (no visual
-randomisation: the training scene of the no-DR Dreamer). The recipe's two blind references
-(zero and uniform random actions) say what a return is worth: on cartpole-balance doing
+images and ``--batch`` transitions per update, then evaluates it twice: on the recipe's
+held-out scenes (held-out textures and camera jitter, as in the recipe's table) and on
+dm_control's own scene (no visual randomisation: the training scene of a no-DR run). The
+recipe's two blind references (zero and uniform random actions) say what a return is worth: on cartpole-balance doing
 nothing scores ~750 and random actions ~320, so a Dreamer below them has not learned to
 balance.
 

@@ -197,13 +197,13 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
         check_unit_box(action_spec)
         return AsymmetricSACPolicy(self.loss, explore, self.config.frames)
 
-    def make_primer(self, image_size: int = 64) -> TensorDictPrimer | None:
+    def make_primer(self) -> TensorDictPrimer | None:
         """The env's primer for the previous ``frames - 1`` images (``("agent",
         "frames")``); ``None`` for a single-frame actor, which carries nothing."""
         if self.config.frames == 1:
             return None
         return TensorDictPrimer(Composite({"agent": Composite({"frames": Unbounded(
-            (self.config.frames - 1, image_size, image_size, 3), dtype=torch.uint8)})}),
+            (self.config.frames - 1, 64, 64, 3), dtype=torch.uint8)})}),
             default_value=0, expand_specs=True)
 
     def state_dict(self) -> dict:
