@@ -8,9 +8,9 @@ recipe: one update of 128 transitions per 4 steps, one image) with ``--frames`` 
 images and ``--batch`` transitions per update, then evaluates it twice: on the recipe's
 held-out scenes (held-out textures and camera jitter, as in the recipe's table) and on
 dm_control's own scene (no visual randomisation: the training scene of a no-DR run). The
-recipe's two blind references (zero and uniform random actions) say what a return is worth: on cartpole-balance doing
-nothing scores ~750 and random actions ~320, so a Dreamer below them has not learned to
-balance.
+recipe's two blind references (zero and uniform random actions) say what a return is
+worth: on cartpole-balance doing nothing scores ~750 and random actions ~320, so a
+baseline below them has not learned to balance.
 
 The run resumes: rerunning with a larger ``--steps`` into the same ``--out`` continues
 from the stored episodes and checkpoint (one result file per budget).
