@@ -52,6 +52,10 @@ def main(argv=None) -> None:
                         help="SAC: stacked images the actor reads (the recipe's sac_frames)")
     parser.add_argument("--batch", type=int, default=128,
                         help="SAC: transitions per update (the recipe's sac_batch)")
+    parser.add_argument("--n-step", type=int, default=1,
+                        help="SAC: the critic's n-step return (the recipe's sac_n_step)")
+    parser.add_argument("--tau", type=float, default=0.005,
+                        help="SAC: the critic targets' Polyak rate (the recipe's sac_tau)")
     parser.add_argument("--out", default="outputs/pixel_dreamer_budget")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
@@ -59,11 +63,13 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     if min(args.train_every, args.steps, args.frames, args.batch) < 1:
         parser.error("need --train-every, --steps, --frames and --batch >= 1")
-    if args.agent == "dreamer" and (args.frames != 1 or args.batch != 128):
-        parser.error("--frames and --batch are the SAC's (--agent sac)")
+    if args.agent == "dreamer" and (args.frames, args.batch, args.n_step, args.tau) != (
+            1, 128, 1, 0.005):
+        parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
     torch.set_num_threads(args.threads)
     sac = {"sac_train_every": args.train_every, "sac_frames": args.frames,
-           "sac_batch": args.batch} if args.agent == "sac" else {}
+           "sac_batch": args.batch, "sac_n_step": args.n_step,
+           "sac_tau": args.tau} if args.agent == "sac" else {}
     cfg = recipe.Config(**{**recipe.PRESETS[args.preset], "tasks": [args.task],
                            "seeds": [args.seed], "env_steps": args.steps,
                            "pixel_train_every": args.train_every, "output_dir": args.out,
@@ -73,7 +79,8 @@ def main(argv=None) -> None:
         name = "asymmetric_sac" if args.dr else "asymmetric_sac_no_dr"
         method = f"Asymmetric SAC{' + DR' if args.dr else ', no DR'}, {args.frames} frame(s)"
         stage_dir = Path(args.out) / (f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
-                                      f"_frames{args.frames}_batch{args.batch}")
+                                      f"_frames{args.frames}_batch{args.batch}"
+                                      f"_n{args.n_step}_tau{args.tau:g}")
         result = recipe.asymmetric_sac_stage(
             cfg, args.task, args.seed, stage_dir,
             visual=VisualRandomisation.training() if args.dr else None)
@@ -93,6 +100,7 @@ def main(argv=None) -> None:
     references = recipe.references_stage(cfg, args.task, args.seed)
     summary = {"method": method, "steps": args.steps, "frames": args.frames,
                "batch": args.batch if args.agent == "sac" else None,
+               "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],
                "heldout_scenes": {k: result[k] for k in ("mean", "std", "returns")},
                "own_scene": own_scene,

@@ -50,22 +50,37 @@ class AsymmetricSACConfig:
     # the actor reads the last `frames` images stacked on the channel axis (DrQ: 3), so
     # that it can see motion: one image holds no velocity. 1: the current image alone.
     frames: int = 1
+    # the critic's target sums this many discounted rewards before it bootstraps (DrQ-v2:
+    # 3). With few updates a 1-step target carries reward back ~tau * updates steps, too
+    # short for the critic to see a pole fall; n steps carry it n times as far.
+    n_step: int = 1
 
     def __post_init__(self):
-        if self.frames < 1:
-            raise ValueError(f"frames must be >= 1, got {self.frames}")
+        if self.frames < 1 or self.n_step < 1:
+            raise ValueError(f"frames and n_step must be >= 1, got {self.frames} and "
+                             f"{self.n_step}")
+        if not 0.0 < self.tau <= 1.0:
+            raise ValueError(f"tau must be in (0, 1], got {self.tau}")
 
 
-def transitions_from_slices(batch: TensorDictBase, frames: int = 1) -> TensorDict:
+def transitions_from_slices(batch: TensorDictBase, frames: int = 1, n_step: int = 1,
+                            gamma: float = 0.99) -> TensorDict:
     """``[B, T]`` slices of stored steps (only ``("next", ...)`` observations are kept)
-    -> ``[N]`` transitions ``(o_t, s_t, a_t, r, o_{t+1}, s_{t+1}, done)``.
+    -> ``[N]`` transitions ``(o_t, s_t, a_t, R, o_{t+m}, s_{t+m}, done, m)``.
 
     Step ``t``'s observation is step ``t - 1``'s ``next`` one, so each slice gives
-    ``T - frames`` transitions; one whose frames would reach back past the start of its
-    episode (an ``is_init`` step among the last ``frames``) cannot be rebuilt this way and
-    is dropped. With ``frames = k > 1`` the pixels of a transition are the last ``k``
-    observations, ``[N, k, H, W, C]`` oldest first (``o_{t+1}``'s stack is ``o_t``'s shifted
-    by one); the state stays the current step's.
+    ``T - frames - n_step + 1`` transitions; one whose frames would reach back past the
+    start of its episode (an ``is_init`` step among the last ``frames``) cannot be rebuilt
+    this way and is dropped. With ``frames = k > 1`` the pixels of a transition are the last
+    ``k`` observations, ``[N, k, H, W, C]`` oldest first (``o_{t+1}``'s stack is ``o_t``'s
+    shifted by one); the state stays the current step's.
+
+    With ``n_step = n > 1`` the reward is ``R = sum_{i<m} gamma^i r_{t+i}`` over ``m <= n``
+    steps and the next observation is ``o_{t+m}``: ``m`` is ``n`` unless the episode
+    terminates first (``m`` ends at the terminal step, ``done`` is set) or is cut by the
+    start of the next one (``m`` ends before it and the target bootstraps there).
+    ``"steps_to_next_obs"`` holds ``m``, which TorchRL's TD(0) estimator reads as the
+    power of ``gamma`` for the bootstrap.
 
     Examples:
         >>> b = TensorDict({"action": torch.arange(6.).reshape(2, 3, 1),
@@ -80,29 +95,49 @@ def transitions_from_slices(batch: TensorDictBase, frames: int = 1) -> TensorDic
         >>> t = transitions_from_slices(b, frames=2)
         >>> t["pixels"].shape, t["state"].flatten().tolist(), t["action"].flatten().tolist()
         (torch.Size([2, 2, 64, 64, 3]), [11.0, 14.0], [2.0, 5.0])
+        >>> t = transitions_from_slices(b, n_step=2, gamma=0.5)
+        >>> t["next", "reward"].flatten().tolist(), t["next", "state"].flatten().tolist()
+        ([1.5, 1.5], [12.0, 15.0])
     """
-    if frames < 1:
-        raise ValueError(f"frames must be >= 1, got {frames}")
-    if batch.ndim != 2 or batch.shape[1] < frames + 1:
-        raise ValueError(f"need [slices, steps >= {frames + 1}] slices for {frames} frame(s), "
-                         f"got batch shape {batch.shape}")
-    nxt, steps = batch["next"], batch.shape[1] - frames
+    if frames < 1 or n_step < 1:
+        raise ValueError(f"frames and n_step must be >= 1, got {frames} and {n_step}")
+    if batch.ndim != 2 or batch.shape[1] < frames + n_step:
+        raise ValueError(f"need [slices, steps >= {frames + n_step}] slices for {frames} "
+                         f"frame(s) and {n_step}-step returns, got batch shape {batch.shape}")
+    nxt, steps = batch["next"], batch.shape[1] - frames - n_step + 1
     # window j holds observations j .. j + frames - 1 (the "next" ones of those steps)
-    # and acts at step j + frames
+    # and acts at step j + frames; its return runs over steps j + frames .. + n_step - 1
     windows = torch.arange(frames)[None, :] + torch.arange(steps)[:, None]  # [steps, k]
-    pixels, now = nxt["pixels"], windows[:, -1]
-    terminated = nxt["terminated"][:, now + 1].bool()
+    now = windows[:, -1]
+    ahead = now[:, None] + 1 + torch.arange(n_step)  # [steps, n] the return's steps
+    init = batch["is_init"].reshape(batch.shape).bool()
+    ended = nxt["terminated"].reshape(batch.shape).bool()[:, ahead]  # [B, steps, n]
+    # step i of the return counts if no earlier one terminated and it is not the start
+    # of a new episode (step 0 always: a transition starting an episode is dropped below)
+    fresh = ~init[:, ahead]
+    fresh[..., 0] = True
+    counts = fresh.clone()
+    counts[..., 1:] &= ~ended[..., :-1]
+    counts = counts.cumprod(-1).bool()
+    m = counts.sum(-1)  # [B, steps] in 1 .. n_step
+    discount = gamma ** torch.arange(n_step, dtype=nxt["reward"].dtype)
+    reward = nxt["reward"].reshape(*batch.shape, -1)[:, ahead]  # [B, steps, n, 1]
+    reward = (reward * (discount[:, None] * counts[..., None])).sum(2)
+    terminated = (ended & counts).any(-1, keepdim=True)
+    last = (m - 1)[..., None]  # offset of the step whose "next" observation is o_{t+m}
+    rows = torch.arange(batch.shape[0])[:, None, None]
+    pixels = nxt["pixels"]
     if frames == 1:  # the single-frame actor reads [H, W, C] images
-        obs, next_obs = pixels[:, now], pixels[:, now + 1]
+        obs, next_obs = pixels[:, now], pixels[rows[..., 0], now + m]
     else:
-        obs, next_obs = pixels[:, windows], pixels[:, windows + 1]
+        obs, next_obs = pixels[:, windows], pixels[rows, windows + last + 1]
     out = TensorDict({
         "pixels": obs, "state": nxt["state"][:, now],
         "action": batch["action"][:, now + 1],
-        "next": {"pixels": next_obs, "state": nxt["state"][:, now + 1],
-                 "reward": nxt["reward"][:, now + 1], "terminated": terminated,
+        "steps_to_next_obs": m[..., None].to(reward.dtype),
+        "next": {"pixels": next_obs, "state": nxt["state"][rows[..., 0], now + m],
+                 "reward": reward, "terminated": terminated,
                  "done": terminated.clone()}}, [batch.shape[0], steps])
-    init = batch["is_init"].reshape(batch.shape).bool()
     keep = ~init[:, windows + 1].any(-1)  # none of steps j + 1 .. j + frames starts an episode
     return out[keep]
 
@@ -177,8 +212,10 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
         self.shift = RandomShift(config.shift_pad, per) if config.shift_pad else None
 
     def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One SAC step on the transitions inside ``[B, T]`` slices (``T > frames``)."""
-        data = transitions_from_slices(batch, self.config.frames)
+        """One SAC step on the transitions inside ``[B, T]`` slices
+        (``T >= frames + n_step``)."""
+        data = transitions_from_slices(batch, self.config.frames, self.config.n_step,
+                                       self.config.gamma)
         if self.shift is not None:  # the actor's images only; the critic reads the state
             data.set("pixels", self.shift(data["pixels"]))
             data.set(("next", "pixels"), self.shift(data["next", "pixels"]))

@@ -220,6 +220,9 @@ class Config:
     # the SAC actor reads this many stacked images (AsymmetricSACConfig.frames; 1: the
     # current image alone, which holds no velocity)
     sac_frames: int = 1
+    # the SAC critic's n-step return and Polyak rate (AsymmetricSACConfig.n_step, .tau)
+    sac_n_step: int = 1
+    sac_tau: float = 0.005
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
     critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
@@ -260,7 +263,7 @@ class Config:
               f"unknown size {self.model_size!r}; valid: {sorted(RSSM_SIZES)}")
         check_positive(self, "env_steps", "train_every", "pixel_train_every", "episode_steps",
                        "slice_len", "slices", "student_slice_len", "student_slices", "horizon",
-                       "sac_train_every", "sac_batch", "sac_frames",
+                       "sac_train_every", "sac_batch", "sac_frames", "sac_n_step", "sac_tau",
                        "imagination_starts", "eval_episodes", "eval_steps", "student_lr",
                        "actor_lr", "critic_lr", "jobs", "teacher_select_episodes")
         unknown = [name for name in self.students if name not in STUDENTS]
@@ -332,10 +335,11 @@ class Config:
                             slices=self.slices)
 
     def sac_online(self) -> OnlineConfig:
-        """The Asymmetric SAC's budget: slices of ``sac_frames + 1`` steps give one
-        transition each."""
+        """The Asymmetric SAC's budget: slices of ``sac_frames + sac_n_step`` steps give
+        one transition each."""
         return dataclasses.replace(self.online(pixels=True), train_every=self.sac_train_every,
-                                   slice_len=self.sac_frames + 1, slices=self.sac_batch)
+                                   slice_len=self.sac_frames + self.sac_n_step,
+                                   slices=self.sac_batch)
 
     def dreamer(self) -> DreamerConfig:
         return DreamerConfig(size=self.model_size, horizon=self.horizon,
@@ -832,7 +836,8 @@ def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path,
     the pixel Dreamers' environment steps."""
     torch.manual_seed(seed)
     agent = AsymmetricSACAgent(*state_dim(task), AsymmetricSACConfig(
-        depth=RSSM_SIZES[cfg.model_size]["depth"], lr=cfg.critic_lr, frames=cfg.sac_frames))
+        depth=RSSM_SIZES[cfg.model_size]["depth"], lr=cfg.critic_lr, frames=cfg.sac_frames,
+        n_step=cfg.sac_n_step, tau=cfg.sac_tau))
     env = control_env(task, seed, pixels=True, visual=visual,
                       max_episode_steps=cfg.episode_steps, camera_id=cfg.camera_id,
                       primer=agent.make_primer())
