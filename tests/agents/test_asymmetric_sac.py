@@ -121,6 +121,61 @@ def test_stacked_transitions_hold_the_last_frames_oldest_first_and_stay_in_one_e
         AsymmetricSACConfig(frames=0)
 
 
+def _ramp(T=6):
+    """One slice whose step i has reward i + 1 and state 10 + i."""
+    batch = _slices(B=1, T=T, state_dim=1)
+    batch["next", "reward"] = torch.arange(1.0, T + 1).reshape(1, T, 1)
+    batch["next", "state"] = torch.arange(10.0, 10 + T).reshape(1, T, 1)
+    return batch
+
+
+@pytest.mark.parametrize("terminates", [False, True])
+def test_n_step_returns_sum_discounted_rewards_and_stop_at_an_episode_end(terminates):
+    g = 0.5
+    t = transitions_from_slices(_ramp(), n_step=3, gamma=g)
+    # no episode end: acting at steps 1, 2, 3, each sums three rewards, bootstraps 3 on
+    assert t.shape == (3,)
+    torch.testing.assert_close(t["next", "reward"].flatten(),
+                               torch.tensor([2 + 3 * g + 4 * g ** 2, 3 + 4 * g + 5 * g ** 2,
+                                             4 + 5 * g + 6 * g ** 2]))
+    torch.testing.assert_close(t["next", "state"].flatten(), torch.tensor([13.0, 14.0, 15.0]))
+    torch.testing.assert_close(t["steps_to_next_obs"].flatten(), torch.tensor([3.0, 3.0, 3.0]))
+    assert not t["next", "terminated"].any()
+    # an episode ends at step 2 (terminal, or cut by the time limit) and the next starts
+    # at step 3: acting at step 1 sums steps 1-2, at step 2 step 2 alone; step 3 starts
+    # the new episode and has no previous observation in this slice: dropped
+    batch = _ramp()
+    batch["is_init"][0, 3] = True
+    batch["next", "terminated"][0, 2] = terminates
+    t = transitions_from_slices(batch, n_step=3, gamma=g)
+    assert t.shape == (2,)
+    torch.testing.assert_close(t["next", "reward"].flatten(), torch.tensor([2 + 3 * g, 3.0]))
+    torch.testing.assert_close(t["next", "state"].flatten(), torch.tensor([12.0, 12.0]))
+    torch.testing.assert_close(t["steps_to_next_obs"].flatten(), torch.tensor([2.0, 1.0]))
+    assert t["next", "terminated"].flatten().tolist() == [terminates, terminates]
+    with pytest.raises(ValueError, match="4"):
+        transitions_from_slices(batch[:, :3], n_step=3)
+    with pytest.raises(ValueError, match="n_step"):
+        AsymmetricSACConfig(n_step=0)
+    with pytest.raises(ValueError, match="tau"):
+        AsymmetricSACConfig(tau=0.0)
+
+
+def test_n_step_target_bootstraps_with_gamma_to_the_power_of_the_steps_taken():
+    # TorchRL's TD(0) estimator reads "steps_to_next_obs": target = R + gamma^m V(o_{t+m})
+    agent = AsymmetricSACAgent(1, 1, AsymmetricSACConfig(depth=4, hidden=16, n_step=3))
+    estimator = agent.loss.value_estimator
+    td = TensorDict({"steps_to_next_obs": torch.tensor([[3.0], [1.0]]),
+                     "next": {"reward": torch.tensor([[1.0], [1.0]]),
+                              "state_value": torch.tensor([[10.0], [10.0]]),
+                              "done": torch.zeros(2, 1, dtype=torch.bool),
+                              "terminated": torch.zeros(2, 1, dtype=torch.bool)}}, [2])
+    target = estimator.value_estimate(td).flatten()
+    torch.testing.assert_close(target, torch.tensor([1 + 0.99 ** 3 * 10, 1 + 0.99 * 10]))
+    # and a 3-step agent trains on slices of frames + 3 steps
+    agent.update(_slices(T=4, state_dim=1))
+
+
 def test_stacked_actor_reads_motion_carries_its_history_and_restarts_it_each_episode():
     from simdist.pipelines import control_env
 

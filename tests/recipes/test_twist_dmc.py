@@ -506,6 +506,15 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
     for r in (first, second):
         assert set(r["references"]) == {"zero", "uniform"}
         assert len(r["heldout_scenes"]["returns"]) == len(r["own_scene"]["returns"]) == 2
+    # the Asymmetric SAC baseline with stacked frames and an n-step critic
+    proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40, "--agent",
+                      "sac", "--train-every", "10", "--frames", "2", "--n-step", "2",
+                      "--tau", "0.05", "--batch", "4", "--out", out, capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    sac = json.loads((out / "cartpole-balance_s0_asymmetric_sac_no_dr_every10_frames2_batch4"
+                             "_n2_tau0.05" / "result_40.json").read_text())
+    assert (sac["updates"], sac["frames"], sac["n_step"], sac["tau"]) == (4, 2, 2, 0.05)
+    assert len(sac["own_scene"]["returns"]) == 2
 
 
 def test_no_baselines_runs_only_the_teacher_chain(teacher_chain_run):
