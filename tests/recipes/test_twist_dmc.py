@@ -515,6 +515,13 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
                              "_n2_tau0.05" / "result_40.json").read_text())
     assert (sac["updates"], sac["frames"], sac["n_step"], sac["tau"]) == (4, 2, 2, 0.05)
     assert len(sac["own_scene"]["returns"]) == 2
+    # its control: the same SAC with a state actor (benchmarks/state_sac_budget.py)
+    proc = _benchmark("state_sac_budget", "--steps", 60, "--prefill", 20, "--train-every",
+                      10, "--n-step", 2, "--eval-episodes", 1, capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    state = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert state["updates"] == 4 and len(state["eval_returns"]) == 1
+    assert 0 <= state["eval_mean"] <= 1000
 
 
 def test_no_baselines_runs_only_the_teacher_chain(teacher_chain_run):
