@@ -220,9 +220,10 @@ class Config:
     # the SAC actor reads this many stacked images (AsymmetricSACConfig.frames; 1: the
     # current image alone, which holds no velocity)
     sac_frames: int = 1
-    # the SAC critic's n-step return and Polyak rate (AsymmetricSACConfig.n_step, .tau)
+    # the SAC critic's n-step return (AsymmetricSACConfig.n_step); 3 with tau 0.02 grows
+    # its Q ~6x faster but the actor learns no better at this budget (benchmarks/README.md)
     sac_n_step: int = 1
-    sac_tau: float = 0.005
+    sac_tau: float = 0.005  # the SAC critic targets' Polyak rate (AsymmetricSACConfig.tau)
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
     critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
