@@ -51,8 +51,9 @@ class AsymmetricSACConfig:
     # that it can see motion: one image holds no velocity. 1: the current image alone.
     frames: int = 1
     # the critic's target sums this many discounted rewards before it bootstraps (DrQ-v2:
-    # 3). With few updates a 1-step target carries reward back ~tau * updates steps, too
-    # short for the critic to see a pole fall; n steps carry it n times as far.
+    # 3). With few updates a 1-step target carries reward back ~tau * updates steps; n
+    # steps carry it n times as far. Measured on cartpole at 3000 updates: Q grows ~6x
+    # faster, the policy learns no better (benchmarks/README.md), so 1 stays the default.
     n_step: int = 1
 
     def __post_init__(self):
