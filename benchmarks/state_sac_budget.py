@@ -38,6 +38,8 @@ def main(argv=None) -> None:
     parser.add_argument("--prefill", type=int, default=1000, help="random-action steps first")
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--layer-norm", action="store_true",
+                        help="LayerNorm on the state input of actor and critic (the expert's)")
     args = parser.parse_args(argv)
     if min(args.steps, args.train_every, args.n_step, args.eval_episodes) < 1:
         parser.error("need --steps, --train-every, --n-step and --eval-episodes >= 1")
@@ -45,7 +47,10 @@ def main(argv=None) -> None:
     torch.manual_seed(args.seed)
     env = control_env(TASK, args.seed, pixels=False, max_episode_steps=500)
     actor = make_actor(5, env.action_spec, 256, obs_key="state")
-    loss = SACLoss(actor, make_critic(5, 1, 256, obs_key="state"), num_qvalue_nets=2,
+    if not args.layer_norm:  # the expert's actor normalises its input first
+        actor.module[0].module[0] = torch.nn.Identity()
+    critic = make_critic(5, 1, 256, obs_key="state", layer_norm=args.layer_norm)
+    loss = SACLoss(actor, critic, num_qvalue_nets=2,
                    loss_function="l2", alpha_init=0.1)
     loss.make_value_estimator(gamma=0.99)
     target = SoftUpdate(loss, tau=args.tau)

@@ -38,6 +38,12 @@ def test_critic_reads_the_state_and_actor_the_pixels_and_both_learn():
     loss = agent.loss
     assert loss.actor_network.in_keys == ["pixels"]
     assert set(loss.qvalue_network.in_keys) == {"state", "action"}
+    # no LayerNorm on the few state features (it erases each sample's mean and scale)
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in loss.qvalue_network.modules())
+    with_norm = AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16,
+                                                             critic_layer_norm=True))
+    assert any(isinstance(m, torch.nn.LayerNorm)
+               for m in with_norm.loss.qvalue_network.modules())
     actor_before = loss.actor_network_params.clone()
     q_before = loss.qvalue_network_params.clone()
     for _ in range(3):

@@ -55,6 +55,10 @@ class AsymmetricSACConfig:
     # steps carry it n times as far. Measured on cartpole at 3000 updates: Q grows ~6x
     # faster, the policy learns no better (benchmarks/README.md), so 1 stays the default.
     n_step: int = 1
+    # LayerNorm on the critic's state input. Off: on cartpole's 5-d state it erases each
+    # sample's mean and scale, and SAC from the state then does not learn (state SAC,
+    # 11000 updates: 234 with it, training episodes up to 994 without; benchmarks/README.md)
+    critic_layer_norm: bool = False
 
     def __post_init__(self):
         if self.frames < 1 or self.n_step < 1:
@@ -202,7 +206,8 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
             in_keys=["loc", "scale"], spec=spec, distribution_class=TanhNormal,
             distribution_kwargs={"low": spec.space.low, "high": spec.space.high},
             return_log_prob=False)
-        critic = make_critic(state_dim, action_dim, config.hidden, obs_key="state")
+        critic = make_critic(state_dim, action_dim, config.hidden, obs_key="state",
+                             layer_norm=config.critic_layer_norm)
         self.loss = SACLoss(self.actor, critic, num_qvalue_nets=2, loss_function="l2",
                             alpha_init=config.alpha_init)
         self.loss.make_value_estimator(gamma=config.gamma)

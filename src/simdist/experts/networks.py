@@ -34,9 +34,14 @@ class QNetwork(nn.Module):
         torch.Size([3, 1])
     """
 
-    def __init__(self, obs_dim: int, action_dim: int, hidden: int = 256):
+    def __init__(self, obs_dim: int, action_dim: int, hidden: int = 256,
+                 layer_norm: bool = True):
         super().__init__()
-        self.norm = nn.LayerNorm(obs_dim)
+        # LayerNorm over a handful of heterogeneous features (cartpole's 5-d state) erases
+        # each sample's mean and scale, two of its five degrees of freedom: measured, SAC
+        # with it does not learn cartpole-balance (benchmarks/README.md); the quadruped's
+        # ~70-d observation keeps it (the committed expert was trained with it)
+        self.norm = nn.LayerNorm(obs_dim) if layer_norm else nn.Identity()
         self.net = MLP(in_features=obs_dim + action_dim, out_features=1,
                        num_cells=[hidden, hidden], activation_class=nn.ELU)
 
@@ -44,6 +49,9 @@ class QNetwork(nn.Module):
         return self.net(torch.cat([self.norm(observation), action], -1))
 
 
-def make_critic(obs_dim: int, action_dim: int, hidden: int = 256, obs_key="observation"):
-    """``Q(observation, action)`` as a TorchRL ``ValueOperator``."""
-    return ValueOperator(QNetwork(obs_dim, action_dim, hidden), in_keys=[obs_key, "action"])
+def make_critic(obs_dim: int, action_dim: int, hidden: int = 256, obs_key="observation",
+                layer_norm: bool = True):
+    """``Q(observation, action)`` as a TorchRL ``ValueOperator`` (``layer_norm``: see
+    :class:`QNetwork`)."""
+    return ValueOperator(QNetwork(obs_dim, action_dim, hidden, layer_norm),
+                         in_keys=[obs_key, "action"])
