@@ -96,7 +96,8 @@ def main(argv=None) -> None:
             evaluation.append(round(float(eval_env.rollout(500, actor)["next", "reward"].sum())))
             eval_env.close()
     result = {**vars(args), "updates": updates, "training_returns": returns,
-              "q_end": -float(out["loss_actor"].detach()) if out is not None else None, "eval_returns": evaluation,
+              "q_end": -float(out["loss_actor"].detach()) if out is not None else None,
+              "eval_returns": evaluation,
               "eval_mean": sum(evaluation) / len(evaluation),
               "seconds": round(time.perf_counter() - start)}
     print(json.dumps(result))
