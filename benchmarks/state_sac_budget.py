@@ -46,9 +46,7 @@ def main(argv=None) -> None:
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
     env = control_env(TASK, args.seed, pixels=False, max_episode_steps=500)
-    actor = make_actor(5, env.action_spec, 256, obs_key="state")
-    if not args.layer_norm:  # the expert's actor normalises its input first
-        actor.module[0].module[0] = torch.nn.Identity()
+    actor = make_actor(5, env.action_spec, 256, obs_key="state", layer_norm=args.layer_norm)
     critic = make_critic(5, 1, 256, obs_key="state", layer_norm=args.layer_norm)
     loss = SACLoss(actor, critic, num_qvalue_nets=2,
                    loss_function="l2", alpha_init=0.1)

@@ -119,9 +119,8 @@ def transitions_from_slices(batch: TensorDictBase, frames: int = 1, n_step: int 
     ended = nxt["terminated"].reshape(batch.shape).bool()[:, ahead]  # [B, steps, n]
     # step i of the return counts if no earlier one terminated and it is not the start
     # of a new episode (step 0 always: a transition starting an episode is dropped below)
-    fresh = ~init[:, ahead]
-    fresh[..., 0] = True
-    counts = fresh.clone()
+    counts = ~init[:, ahead]
+    counts[..., 0] = True
     counts[..., 1:] &= ~ended[..., :-1]
     counts = counts.cumprod(-1).bool()
     m = counts.sum(-1)  # [B, steps] in 1 .. n_step

@@ -8,11 +8,14 @@ from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 
-def make_actor(obs_dim: int, action_spec, hidden: int = 256, obs_key="observation"):
-    """Tanh-Gaussian SAC actor (``observation -> action``) bounded by ``action_spec``."""
+def make_actor(obs_dim: int, action_spec, hidden: int = 256, obs_key="observation",
+               layer_norm: bool = True):
+    """Tanh-Gaussian SAC actor (``observation -> action``) bounded by ``action_spec``
+    (``layer_norm``: see :class:`QNetwork`)."""
     action_dim = action_spec.shape[-1]
     net = nn.Sequential(
-        nn.LayerNorm(obs_dim),  # observations mix joint angles, velocities and forces
+        # observations mix joint angles, velocities and forces
+        nn.LayerNorm(obs_dim) if layer_norm else nn.Identity(),
         MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=[hidden, hidden],
             activation_class=nn.ELU),
         NormalParamExtractor(scale_mapping="biased_softplus_1.0", scale_lb=1e-3),
