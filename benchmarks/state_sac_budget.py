@@ -86,17 +86,28 @@ def main(argv=None) -> None:
             optim.step()
             target.step()
             updates += 1
-    evaluation = []
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        for episode in range(args.eval_episodes):
-            eval_env = control_env(TASK, args.seed + 10_000 + episode, pixels=False,
-                                   max_episode_steps=500)
-            evaluation.append(round(float(eval_env.rollout(500, actor)["next", "reward"].sum())))
-            eval_env.close()
+    evaluation = {}
+    # the mean action (tanh of the Gaussian's mean) and a sampled one, on the same worlds:
+    # a gap between them says where the balancing lives
+    for kind, exploration in (("mean_action", ExplorationType.DETERMINISTIC),
+                              ("sampled_action", ExplorationType.RANDOM)):
+        evaluation[kind] = []
+        with torch.no_grad(), set_exploration_type(exploration):
+            for episode in range(args.eval_episodes):
+                eval_env = control_env(TASK, args.seed + 10_000 + episode, pixels=False,
+                                       max_episode_steps=500)
+                rollout = eval_env.rollout(500, actor)
+                evaluation[kind].append(round(float(rollout["next", "reward"].sum())))
+                evaluation[f"{kind}_abs"] = float(rollout["action"].abs().mean())
+                eval_env.close()
     result = {**vars(args), "updates": updates, "training_returns": returns,
               "q_end": -float(out["loss_actor"].detach()) if out is not None else None,
-              "eval_returns": evaluation,
-              "eval_mean": sum(evaluation) / len(evaluation),
+              "eval_returns": evaluation["mean_action"],
+              "eval_mean": sum(evaluation["mean_action"]) / args.eval_episodes,
+              "eval_sampled_returns": evaluation["sampled_action"],
+              "eval_sampled_mean": sum(evaluation["sampled_action"]) / args.eval_episodes,
+              "last_episode_mean_abs_action": {k: evaluation[f"{k}_abs"]
+                                               for k in ("mean_action", "sampled_action")},
               "seconds": round(time.perf_counter() - start)}
     print(json.dumps(result))
 

@@ -521,7 +521,9 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
     assert proc.returncode == 0, proc.stderr
     state = json.loads(proc.stdout.strip().splitlines()[-1])
     assert state["updates"] == 4 and len(state["eval_returns"]) == 1
-    assert 0 <= state["eval_mean"] <= 1000
+    assert len(state["eval_sampled_returns"]) == 1
+    assert 0 <= state["eval_mean"] <= 1000 and 0 <= state["eval_sampled_mean"] <= 1000
+    assert set(state["last_episode_mean_abs_action"]) == {"mean_action", "sampled_action"}
 
 
 def test_no_baselines_runs_only_the_teacher_chain(teacher_chain_run):
