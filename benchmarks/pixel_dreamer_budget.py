@@ -4,13 +4,14 @@ Trains one of the TWIST recipe's pixel-Dreamer baselines (``recipes/twist_dmc.py
 ``pixel_dreamer_stage``: the same agent, online loop, seeding and evaluation) with one
 update per ``--train-every`` agent steps instead of the recipe's 20, for ``--steps`` agent
 steps, or with ``--agent sac`` its Asymmetric SAC baseline (``asymmetric_sac_stage``; the
-recipe: one update of 128 transitions per 4 steps, one image) with ``--frames`` stacked
-images and ``--batch`` transitions per update, then evaluates it twice: on the recipe's
-held-out scenes (held-out textures and camera jitter, as in the recipe's table) and on
-dm_control's own scene (no visual randomisation: the training scene of a no-DR run). The
-recipe's two blind references (zero and uniform random actions) say what a return is
-worth: on cartpole-balance doing nothing scores ~750 and random actions ~320, so a
-baseline below them has not learned to balance.
+recipe: one update of 128 transitions per 4 steps, three stacked images, 3-step returns,
+Polyak rate 0.02) with ``--frames`` stacked images, ``--batch`` transitions per update
+and the critic's ``--n-step`` and ``--tau`` (each defaults to the preset's), then
+evaluates it twice: on the recipe's held-out scenes (held-out textures and camera
+jitter, as in the recipe's table) and on dm_control's own scene (no visual randomisation:
+the training scene of a no-DR run). The recipe's two blind references (zero and uniform
+random actions) say what a return is worth: on cartpole-balance doing nothing scores ~750
+and random actions ~320, so a baseline below them has not learned to balance.
 
 The run resumes: rerunning with a larger ``--steps`` into the same ``--out`` continues
 from the stored episodes and checkpoint (one result file per budget).
@@ -18,7 +19,8 @@ from the stored episodes and checkpoint (one result file per budget).
 Usage:
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000          # no DR
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 --dr     # + DR
-    python benchmarks/pixel_dreamer_budget.py --agent sac --frames 3 --steps 12000   # SAC
+    python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
+    python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
 """
 
@@ -48,24 +50,32 @@ def main(argv=None) -> None:
                         help="train on the recipe's visually randomised scenes (+ DR)")
     parser.add_argument("--agent", choices=["dreamer", "sac"], default="dreamer",
                         help="a pixel Dreamer, or the Asymmetric SAC baseline")
-    parser.add_argument("--frames", type=int, default=1,
-                        help="SAC: stacked images the actor reads (the recipe's sac_frames)")
-    parser.add_argument("--batch", type=int, default=128,
-                        help="SAC: transitions per update (the recipe's sac_batch)")
-    parser.add_argument("--n-step", type=int, default=1,
-                        help="SAC: the critic's n-step return (the recipe's sac_n_step)")
-    parser.add_argument("--tau", type=float, default=0.005,
-                        help="SAC: the critic targets' Polyak rate (the recipe's sac_tau)")
+    parser.add_argument("--frames", type=int,
+                        help="SAC: stacked images the actor reads (default: the preset's "
+                             "sac_frames)")
+    parser.add_argument("--batch", type=int,
+                        help="SAC: transitions per update (default: the preset's sac_batch)")
+    parser.add_argument("--n-step", type=int,
+                        help="SAC: the critic's n-step return (default: the preset's "
+                             "sac_n_step)")
+    parser.add_argument("--tau", type=float,
+                        help="SAC: the critic targets' Polyak rate (default: the preset's "
+                             "sac_tau)")
     parser.add_argument("--out", default="outputs/pixel_dreamer_budget")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
                         help="the recipe preset whose Dreamer settings to use")
     args = parser.parse_args(argv)
-    if min(args.train_every, args.steps, args.frames, args.batch) < 1:
-        parser.error("need --train-every, --steps, --frames and --batch >= 1")
-    if args.agent == "dreamer" and (args.frames, args.batch, args.n_step, args.tau) != (
-            1, 128, 1, 0.005):
+    sac_options = {"frames": "sac_frames", "batch": "sac_batch", "n_step": "sac_n_step",
+                   "tau": "sac_tau"}
+    if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
+    preset = recipe.Config(**recipe.PRESETS[args.preset])
+    for option, field in sac_options.items():  # unset: the preset's own setting
+        if getattr(args, option) is None:
+            setattr(args, option, getattr(preset, field))
+    if min(args.train_every, args.steps, args.frames, args.batch, args.n_step) < 1:
+        parser.error("need --train-every, --steps, --frames, --batch and --n-step >= 1")
     torch.set_num_threads(args.threads)
     sac = {"sac_train_every": args.train_every, "sac_frames": args.frames,
            "sac_batch": args.batch, "sac_n_step": args.n_step,
