@@ -67,6 +67,7 @@ from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_job
                            write_json_atomic)
 from simdist.utils.cli import (check, check_builds, check_positive, exit_on_folder_errors,
                                parse_config)
+from simdist.utils.stages import ABSENT_MEANS
 from simdist.viz.student_view import record_student_episode
 
 TWIST = "TWIST (student)"
@@ -224,8 +225,9 @@ class Config:
     # n_step and tau). Measured on cartpole without DR, 3000 updates, three frames: 3 and
     # 0.02 balance on the training scene (976 of ~1000), 1 and 0.005 do not (339, random
     # actions 319; benchmarks/README.md, "Asymmetric SAC that balances")
-    sac_n_step: int = 3
-    sac_tau: float = 0.02
+    # (folders made before the two fields existed ran with 1 and 0.005)
+    sac_n_step: int = field(default=3, metadata={ABSENT_MEANS: 1})
+    sac_tau: float = field(default=0.02, metadata={ABSENT_MEANS: 0.005})
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
     critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
@@ -381,7 +383,8 @@ TRAIN_CAMERA_JITTER = {
 
 def saved_config(outputs: str | os.PathLike, preset: str = "default") -> Config:
     """The config of a finished run in ``outputs`` (its ``config.json``), fields this code
-    no longer has dropped and fields added since at ``preset``'s values; without a
+    no longer has dropped and fields added since at ``preset``'s values (or at what a
+    folder without them was made with, their ``ABSENT_MEANS``); without a
     ``config.json``, ``preset``'s config."""
     saved = Path(outputs) / "config.json"
     base = dataclasses.replace(Config(), **PRESETS[preset])
@@ -389,7 +392,9 @@ def saved_config(outputs: str | os.PathLike, preset: str = "default") -> Config:
         return base
     known = {f.name for f in dataclasses.fields(Config)}
     values = {k: v for k, v in json.loads(saved.read_text()).items() if k in known}
-    return dataclasses.replace(base, **values)
+    absent = {f.name: f.metadata[ABSENT_MEANS] for f in dataclasses.fields(Config)
+              if ABSENT_MEANS in f.metadata and f.name not in values}
+    return dataclasses.replace(base, **{**absent, **values})
 
 
 def training_visual(cfg: Config) -> VisualRandomisation:
