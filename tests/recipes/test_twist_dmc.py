@@ -927,19 +927,22 @@ def test_reading_noise_is_drawn_in_updates_at_the_readouts_spread():
 
 
 def test_a_folder_from_before_the_sac_critic_options_reads_as_what_it_ran(tmp_path):
-    """Folders made before ``sac_n_step``/``sac_tau`` existed ran 1-step returns with tau
-    0.005: they read so, and the new defaults (3, 0.02) are refused there, not resumed."""
+    """Folders made before ``sac_frames``/``sac_n_step``/``sac_tau`` existed ran one image,
+    1-step returns and tau 0.005: they read so, and the new defaults (3, 3, 0.02) are
+    refused there, not resumed, unless the run has no baselines (no stage reads them)."""
     import dataclasses
 
     from simdist.utils.stages import RunFolderError
 
     recipe = _recipe_module()
     old = dataclasses.asdict(recipe.Config(output_dir=str(tmp_path)))
-    del old["sac_n_step"], old["sac_tau"]
+    del old["sac_frames"], old["sac_n_step"], old["sac_tau"]
     (tmp_path / "config.json").write_text(json.dumps(old))
     saved = recipe.saved_config(tmp_path)
-    assert (saved.sac_n_step, saved.sac_tau) == (1, 0.005)
-    assert (recipe.Config().sac_n_step, recipe.Config().sac_tau) == (3, 0.02)
-    with pytest.raises(RunFolderError, match="sac_n_step"):
-        recipe.stage_runner(recipe.Config(output_dir=str(tmp_path)))
+    assert (saved.sac_frames, saved.sac_n_step, saved.sac_tau) == (1, 1, 0.005)
+    now = recipe.Config(output_dir=str(tmp_path))
+    assert (now.sac_frames, now.sac_n_step, now.sac_tau) == (3, 3, 0.02)
+    with pytest.raises(RunFolderError, match="sac_frames', 'sac_n_step', 'sac_tau"):
+        recipe.stage_runner(now)
     recipe.stage_runner(dataclasses.replace(saved, output_dir=str(tmp_path))).close()
+    recipe.stage_runner(dataclasses.replace(now, baselines=False)).close()

@@ -220,12 +220,12 @@ class Config:
     sac_batch: int = 128
     # the SAC actor reads this many stacked images (AsymmetricSACConfig.frames; 1: the
     # current image alone, which holds no velocity)
-    sac_frames: int = 3
+    sac_frames: int = field(default=3, metadata={ABSENT_MEANS: 1})
     # the SAC critic's n-step return and its targets' Polyak rate (AsymmetricSACConfig's
     # n_step and tau). Measured on cartpole without DR, 3000 updates, three frames: 3 and
     # 0.02 balance on the training scene (976 of ~1000), 1 and 0.005 do not (339, random
     # actions 319; benchmarks/README.md, "Asymmetric SAC that balances")
-    # (folders made before the two fields existed ran with 1 and 0.005)
+    # (folders made before the three fields existed ran with 1 frame, 1 step and 0.005)
     sac_n_step: int = field(default=3, metadata={ABSENT_MEANS: 1})
     sac_tau: float = field(default=0.02, metadata={ABSENT_MEANS: 0.005})
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
@@ -890,11 +890,17 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 
 
 # -- the recipe -------------------------------------------------------------------------
+#: settings only the Asymmetric SAC baseline's stage reads
+SAC_FIELDS = ("sac_train_every", "sac_batch", "sac_frames", "sac_n_step", "sac_tau")
+
+
 def stage_runner(cfg: Config) -> StageRunner:
     # tasks, seeds, students and baselines pick which chains run (rows of the table), not
-    # what a chain computes: a later run with more of them into the same folder adds them
+    # what a chain computes: a later run with more of them into the same folder adds them.
+    # Without baselines no stage reads the SAC's settings, so they do not bar a folder.
+    ignored = () if cfg.baselines else SAC_FIELDS
     return StageRunner(cfg.output_dir, cfg, runtime_keys=(
-        "device", "jobs", "logger", "baselines", "students", "tasks", "seeds"))
+        "device", "jobs", "logger", "baselines", "students", "tasks", "seeds", *ignored))
 
 
 def _stage(runner: StageRunner, name: str, fn) -> dict:
