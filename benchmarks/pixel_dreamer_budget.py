@@ -61,6 +61,14 @@ def main(argv=None) -> None:
     parser.add_argument("--tau", type=float,
                         help="SAC: the critic targets' Polyak rate (default: the preset's "
                              "sac_tau)")
+    parser.add_argument("--slices", type=int,
+                        help="Dreamer: slices per update (default: the preset's slices)")
+    parser.add_argument("--camera-id", type=int,
+                        help="render from this camera of the task's model (default: the "
+                             "preset's, camera 0)")
+    parser.add_argument("--device", default="cpu",
+                        help="where the agent trains and acts (cpu, cuda); replay stays on "
+                             "the CPU")
     parser.add_argument("--out", default="outputs/pixel_dreamer_budget")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
@@ -70,12 +78,16 @@ def main(argv=None) -> None:
                    "tau": "sac_tau"}
     if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
+    if args.agent == "sac" and args.slices is not None:
+        parser.error("--slices is the Dreamer's (--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
     for option, field in sac_options.items():  # unset: the preset's own setting
         if getattr(args, option) is None:
             setattr(args, option, getattr(preset, field))
-    if min(args.train_every, args.steps, args.frames, args.batch, args.n_step) < 1:
-        parser.error("need --train-every, --steps, --frames, --batch and --n-step >= 1")
+    args.slices = preset.slices if args.slices is None else args.slices
+    if min(args.train_every, args.steps, args.frames, args.batch, args.n_step, args.slices) < 1:
+        parser.error("need --train-every, --steps, --frames, --batch, --n-step and --slices "
+                     ">= 1")
     torch.set_num_threads(args.threads)
     sac = {"sac_train_every": args.train_every, "sac_frames": args.frames,
            "sac_batch": args.batch, "sac_n_step": args.n_step,
@@ -83,32 +95,39 @@ def main(argv=None) -> None:
     cfg = recipe.Config(**{**recipe.PRESETS[args.preset], "tasks": [args.task],
                            "seeds": [args.seed], "env_steps": args.steps,
                            "pixel_train_every": args.train_every, "output_dir": args.out,
+                           "slices": args.slices, "camera_id": args.camera_id,
+                           "device": args.device,
                            "teacher_snapshots": 0, **sac})  # no teacher here: any --steps
+    camera = "" if args.camera_id is None else f"_camera{args.camera_id}"
     start = time.perf_counter()
     if args.agent == "sac":
         name = "asymmetric_sac" if args.dr else "asymmetric_sac_no_dr"
         method = f"Asymmetric SAC{' + DR' if args.dr else ', no DR'}, {args.frames} frame(s)"
         stage_dir = Path(args.out) / (f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
                                       f"_frames{args.frames}_batch{args.batch}"
-                                      f"_n{args.n_step}_tau{args.tau:g}")
+                                      f"_n{args.n_step}_tau{args.tau:g}{camera}")
         result = recipe.asymmetric_sac_stage(
             cfg, args.task, args.seed, stage_dir,
             visual=VisualRandomisation.training() if args.dr else None)
     else:
         name = "dreamer_dr" if args.dr else "dreamer_no_dr"
         method = recipe.PIXEL_DREAMERS[name][0]
-        stage_dir = Path(args.out) / f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
+        stage_dir = Path(args.out) / (f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
+                                      + (f"_slices{args.slices}"
+                                         if args.slices != preset.slices else "") + camera)
         result = recipe.pixel_dreamer_stage(cfg, args.task, args.seed,
                                             recipe.PIXEL_DREAMERS[name][1], stage_dir)
     own_scene = result.get("own_scene")
     if own_scene is None:  # trained with DR: how does it do on dm_control's plain scene?
-        agent = load_agent(result["agent"])
+        agent = load_agent(result["agent"], map_location=args.device)
         own_scene = evaluate_returns(args.task, agent.policy(explore=False),
                                      agent.make_primer(), args.seed + 10_000,
                                      cfg.eval_episodes, cfg.eval_steps, pixels=True,
                                      visual=None, camera_id=cfg.camera_id)
     references = recipe.references_stage(cfg, args.task, args.seed)
     summary = {"method": method, "steps": args.steps, "frames": args.frames,
+               "slices": args.slices if args.agent == "dreamer" else None,
+               "camera_id": args.camera_id, "device": args.device,
                "batch": args.batch if args.agent == "sac" else None,
                "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],

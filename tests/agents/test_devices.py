@@ -97,3 +97,38 @@ def test_policy_hands_back_the_envs_device():
     out = teacher.policy(explore=False)(td)
     assert out["action"].device == td["state"].device
     assert out["next", "agent", "stoch"].device == td["state"].device
+
+
+def _sac(frames: int):
+    from simdist.agents import AsymmetricSACAgent, AsymmetricSACConfig
+    return AsymmetricSACAgent(5, 1, AsymmetricSACConfig(depth=4, hidden=16, frames=frames))
+
+
+def _sac_slices(steps: int) -> TensorDict:
+    return TensorDict({"action": torch.zeros(2, steps, 1),
+                       "is_init": torch.zeros(2, steps, 1, dtype=torch.bool),
+                       "next": {"state": torch.zeros(2, steps, 5),
+                                "reward": torch.ones(2, steps, 1),
+                                "terminated": torch.zeros(2, steps, 1, dtype=torch.bool),
+                                "pixels": torch.zeros(2, steps, 64, 64, 3, dtype=torch.uint8)}},
+                      [2, steps])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_asymmetric_sac_on_cuda_trains_on_cpu_slices_and_acts_for_a_cpu_env():
+    """The recipe's ``--device cuda`` once left the Asymmetric SAC on the CPU: its stage
+    never moved the agent, and its update and policy did not move their inputs. (Not on
+    ``meta``: ``SACLoss``'s parameter buffers cannot be moved there.)"""
+    agent = _sac(3).to("cuda")
+    before = [p.detach().clone() for p in agent.loss.actor_network_params.values(True, True)]
+    metrics = agent.update(_sac_slices(4))  # the replay keeps its slices on the CPU
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
+    after = list(agent.loss.actor_network_params.values(True, True))
+    assert any(not torch.equal(a, b) for a, b in zip(after, before))  # it trained
+    assert {t.device.type for t in agent.loss.parameters()} == {"cuda"}
+    td = TensorDict({"pixels": torch.zeros(3, 64, 64, 3, dtype=torch.uint8),
+                     "is_init": torch.ones(3, 1, dtype=torch.bool),
+                     "agent": {"frames": torch.zeros(3, 2, 64, 64, 3, dtype=torch.uint8)}}, [3])
+    out = agent.policy(explore=True)(td)
+    assert out["action"].device.type == "cpu" and out["action"].shape == (3, 1)
+    assert out["next", "agent", "frames"].device.type == "cpu"

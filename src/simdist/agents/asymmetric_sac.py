@@ -28,6 +28,7 @@ from simdist.agents.dreamer import check_unit_box
 from simdist.experts.networks import make_critic
 from simdist.modules import PixelEncoder, RandomShift
 from simdist.modules.checks import check_finite
+from simdist.utils.device import module_device
 
 
 @dataclass
@@ -225,8 +226,9 @@ class AsymmetricSACAgent(ckpt_format.LoadableAgent):
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One SAC step on the transitions inside ``[B, T]`` slices
         (``T >= frames + n_step``)."""
+        # the windows are cut where the replay keeps its slices (the CPU), then moved
         data = transitions_from_slices(batch, self.config.frames, self.config.n_step,
-                                       self.config.gamma)
+                                       self.config.gamma).to(module_device(self.loss))
         if self.shift is not None:  # the actor's images only; the critic reads the state
             data.set("pixels", self.shift(data["pixels"]))
             data.set(("next", "pixels"), self.shift(data["next", "pixels"]))
@@ -343,7 +345,11 @@ class AsymmetricSACPolicy(TensorDictModuleBase):
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         mode = ExplorationType.RANDOM if self.explore else ExplorationType.DETERMINISTIC
         actor_in = td if self.frames == 1 else self._stack(td)
+        # images go to the actor's device and the action comes back to the env's
+        home, device = td.get("pixels").device, module_device(self.loss)
+        if device != home:
+            actor_in = actor_in.select(*actor_in.keys(True, True)).to(device)
         with set_exploration_type(mode), \
                 self.loss.actor_network_params.to_module(self.loss.actor_network):
             out = self.loss.actor_network(actor_in)
-        return td if out is td else td.set("action", out.get("action"))
+        return td if out is td else td.set("action", out.get("action").to(home))

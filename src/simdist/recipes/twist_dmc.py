@@ -845,7 +845,7 @@ def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path,
     torch.manual_seed(seed)
     agent = AsymmetricSACAgent(*state_dim(task), AsymmetricSACConfig(
         depth=RSSM_SIZES[cfg.model_size]["depth"], lr=cfg.critic_lr, frames=cfg.sac_frames,
-        n_step=cfg.sac_n_step, tau=cfg.sac_tau))
+        n_step=cfg.sac_n_step, tau=cfg.sac_tau)).to(cfg.device)
     env = control_env(task, seed, pixels=True, visual=visual,
                       max_episode_steps=cfg.episode_steps, camera_id=cfg.camera_id,
                       primer=agent.make_primer())
