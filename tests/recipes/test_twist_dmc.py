@@ -515,6 +515,17 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
                              "_n2_tau0.05" / "result_40.json").read_text())
     assert (sac["updates"], sac["frames"], sac["n_step"], sac["tau"]) == (4, 2, 2, 0.05)
     assert len(sac["own_scene"]["returns"]) == 2
+    # a Dreamer with other slices per update, from another camera: its own folder
+    proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40,
+                      "--train-every", "10", "--slices", "3", "--camera-id", "1", "--out", out,
+                      capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    other = json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10_slices3_camera1" /
+                        "result_40.json").read_text())
+    assert (other["slices"], other["camera_id"], other["device"]) == (3, 1, "cpu")
+    proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
+                      "--slices", "3", "--out", out, capsys=capsys)
+    assert proc.returncode == 2 and "--slices is the Dreamer's" in proc.stderr
     # its control: the same SAC with a state actor (benchmarks/state_sac_budget.py)
     proc = _benchmark("state_sac_budget", "--steps", 60, "--prefill", 20, "--train-every",
                       10, "--n-step", 2, "--eval-episodes", 1, capsys=capsys)
