@@ -347,8 +347,8 @@ class AsymmetricSACPolicy(TensorDictModuleBase):
         actor_in = td if self.frames == 1 else self._stack(td)
         # images go to the actor's device and the action comes back to the env's
         home, device = td.get("pixels").device, module_device(self.loss)
-        if device != home:
-            actor_in = actor_in.select(*actor_in.keys(True, True)).to(device)
+        if device != home:  # a copy there: the env's tensordict keeps its own device
+            actor_in = actor_in.to(device)
         with set_exploration_type(mode), \
                 self.loss.actor_network_params.to_module(self.loss.actor_network):
             out = self.loss.actor_network(actor_in)
