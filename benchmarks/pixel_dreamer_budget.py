@@ -19,6 +19,8 @@ from the stored episodes and checkpoint (one result file per budget).
 Usage:
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000          # no DR
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 --dr     # + DR
+    python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
+        --actor-distribution trunc_normal --exploration sample     # DreamerV2's actor
     python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
     python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
@@ -63,6 +65,14 @@ def main(argv=None) -> None:
                              "sac_tau)")
     parser.add_argument("--slices", type=int,
                         help="Dreamer: slices per update (default: the preset's slices)")
+    parser.add_argument("--actor-distribution", choices=["tanh_normal", "trunc_normal"],
+                        help="Dreamer: the actor's distribution (default: the preset's "
+                             "pixel_actor_distribution)")
+    parser.add_argument("--exploration", choices=["noise", "sample"],
+                        help="Dreamer: explore with the mode plus noise or by sampling the "
+                             "actor (default: the preset's pixel_exploration)")
+    parser.add_argument("--actor-lr", type=float,
+                        help="Dreamer: actor and critic learning rate (default: the preset's)")
     parser.add_argument("--camera-id", type=int,
                         help="render from this camera of the task's model (default: the "
                              "preset's, camera 0)")
@@ -78,9 +88,21 @@ def main(argv=None) -> None:
                    "tau": "sac_tau"}
     if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
-    if args.agent == "sac" and args.slices is not None:
-        parser.error("--slices is the Dreamer's (--agent dreamer)")
+    dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr")
+    if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
+        parser.error("--slices, --actor-distribution, --exploration and --actor-lr are the "
+                     "Dreamer's (--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
+    # a Dreamer option that is set names the run's folder; unset, the preset's applies
+    suffix = "".join(f"_{tag}{getattr(args, o):g}" if isinstance(getattr(args, o), float)
+                     else f"_{tag}{getattr(args, o)}"
+                     for o, tag in (("actor_distribution", "actor_"),
+                                    ("exploration", "explore_"), ("actor_lr", "lr"))
+                     if getattr(args, o) is not None)
+    actor = {field: getattr(args, o) for o, field in
+             (("actor_distribution", "pixel_actor_distribution"),
+              ("exploration", "pixel_exploration"), ("actor_lr", "actor_lr"),
+              ("actor_lr", "critic_lr")) if getattr(args, o) is not None}
     for option, field in sac_options.items():  # unset: the preset's own setting
         if getattr(args, option) is None:
             setattr(args, option, getattr(preset, field))
@@ -97,7 +119,7 @@ def main(argv=None) -> None:
                            "pixel_train_every": args.train_every, "output_dir": args.out,
                            "slices": args.slices, "camera_id": args.camera_id,
                            "device": args.device,
-                           "teacher_snapshots": 0, **sac})  # no teacher here: any --steps
+                           "teacher_snapshots": 0, **sac, **actor})  # no teacher here: any --steps
     camera = "" if args.camera_id is None else f"_camera{args.camera_id}"
     start = time.perf_counter()
     if args.agent == "sac":
@@ -114,7 +136,8 @@ def main(argv=None) -> None:
         method = recipe.PIXEL_DREAMERS[name][0]
         stage_dir = Path(args.out) / (f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
                                       + (f"_slices{args.slices}"
-                                         if args.slices != preset.slices else "") + camera)
+                                         if args.slices != preset.slices else "")
+                                      + suffix + camera)
         result = recipe.pixel_dreamer_stage(cfg, args.task, args.seed,
                                             recipe.PIXEL_DREAMERS[name][1], stage_dir)
     own_scene = result.get("own_scene")
@@ -128,6 +151,8 @@ def main(argv=None) -> None:
     summary = {"method": method, "steps": args.steps, "frames": args.frames,
                "slices": args.slices if args.agent == "dreamer" else None,
                "camera_id": args.camera_id, "device": args.device,
+               "actor_distribution": cfg.pixel_actor_distribution,
+               "exploration": cfg.pixel_exploration, "actor_lr": cfg.actor_lr,
                "batch": args.batch if args.agent == "sac" else None,
                "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],

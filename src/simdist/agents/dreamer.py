@@ -52,6 +52,23 @@ class DreamerConfig:
     # the actor reads imagined latents with this many feature stds of fresh noise
     # (DreamerActorCriticLoss.actor_input_noise; 0: DreamerV2)
     actor_input_noise: float = 0.0
+    # the actor's distribution (Actor.distribution): "tanh_normal" (unbounded pre-tanh
+    # mean; every teacher so far) or "trunc_normal" (DreamerV2's)
+    actor_distribution: str = "tanh_normal"
+    # how the policy explores: "noise", its mode plus exploration_noise (DreamerV1), or
+    # "sample", a draw from the actor's distribution (DreamerV2; exploration_noise unused)
+    exploration: str = "noise"
+
+    def __post_init__(self):
+        if self.actor_distribution not in Actor.DISTRIBUTIONS:
+            raise ValueError(f"DreamerConfig: unknown actor_distribution "
+                             f"{self.actor_distribution!r}; valid: {list(Actor.DISTRIBUTIONS)}")
+        if self.exploration not in EXPLORATIONS:
+            raise ValueError(f"DreamerConfig: unknown exploration {self.exploration!r}; "
+                             f"valid: {list(EXPLORATIONS)}")
+
+
+EXPLORATIONS = ("noise", "sample")
 
 
 class DreamerPolicy(TensorDictModuleBase):
@@ -63,7 +80,8 @@ class DreamerPolicy(TensorDictModuleBase):
         obs_key: observation read each step (``"state"``, or ``"pixels"`` for a student).
         obs_event_dims: trailing dimensions of one observation (1 for vectors, 3 for HWC).
         exploration_noise: std of Gaussian action noise when ``explore``.
-        explore: add the noise (collection) or not (evaluation).
+        explore: explore (collection) or act with the actor's mode (evaluation).
+        sample: explore by drawing from ``actor.distribution`` instead of adding noise.
 
     Examples:
         >>> agent = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
@@ -75,11 +93,13 @@ class DreamerPolicy(TensorDictModuleBase):
     """
 
     def __init__(self, world_model: DreamerWorldModel, actor, obs_key="state",
-                 obs_event_dims: int = 1, exploration_noise: float = 0.0, explore: bool = True):
+                 obs_event_dims: int = 1, exploration_noise: float = 0.0, explore: bool = True,
+                 sample: bool = False):
         super().__init__()
         self.world_model, self.actor = world_model, actor
         self.obs_key, self.obs_event_dims = obs_key, obs_event_dims
-        self.noise = exploration_noise if explore else 0.0
+        self.sample = sample and explore
+        self.noise = exploration_noise if explore and not sample else 0.0
         keys = [("agent", k) for k in ("belief", "stoch", "prev_action")]
         self.in_keys = [obs_key, "is_init", *keys]
         self.out_keys = ["action", *[("next", *k) for k in keys]]
@@ -107,7 +127,9 @@ class DreamerPolicy(TensorDictModuleBase):
         state = RSSMState(get("belief", rssm.deter_dim), get("stoch", rssm.stoch_dim))
         embed = self.world_model.encoder(obs)
         state = rssm.filter_step(state, get("prev_action", rssm.action_dim), embed, keep)
-        action = self.actor(state.features())
+        features = state.features()
+        action = (self.actor.distribution(features).sample() if self.sample
+                  else self.actor(features))
         if self.noise:
             action = (action + self.noise * torch.randn_like(action)).clamp(-1, 1)
         action = action.to(home)
@@ -134,7 +156,8 @@ class DreamerAgent(ckpt_format.LoadableAgent):
                  obs_key="state", reconstruct_key: str | None = None):
         self.world_model, self.config = world_model, config
         feature_dim, hidden = world_model.rssm.feature_dim, world_model.rssm.input_net[0].out_features
-        self.actor = Actor(feature_dim, action_dim, hidden=hidden, layers=3)
+        self.actor = Actor(feature_dim, action_dim, hidden=hidden, layers=3,
+                           distribution=config.actor_distribution)
         self.critic = ScalarHead(feature_dim, hidden)
         self.model_loss = DreamerWorldModelLoss(world_model)
         self.model_loss.set_keys(observation=("next", obs_key))
@@ -175,14 +198,16 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         """The recurrent acting policy (reads ``self.obs_key``; needs ``make_primer()``).
 
         Args:
-            explore: add ``config.exploration_noise`` (collection) or not (evaluation).
+            explore: explore as ``config.exploration`` says (collection) or act with the
+                actor's mode (evaluation).
             action_spec: the env's TorchRL action spec, checked against the actor's range:
                 a Dreamer actor acts in ``[-1, 1]`` (tanh), the range it was trained in,
                 so an env with other bounds is refused here rather than clipped silently.
         """
         check_unit_box(action_spec)
         return DreamerPolicy(self.world_model, self.actor, self.obs_key, self.obs_event_dims,
-                             self.config.exploration_noise, explore)
+                             self.config.exploration_noise, explore,
+                             sample=self.config.exploration == "sample")
 
     @property
     def device(self) -> torch.device:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 from torch import nn
-from torchrl.modules import TanhNormal
+from torchrl.modules import TanhNormal, TruncatedNormal
 
 from simdist.modules.checks import check_last_dims
 from simdist.modules.encoders import mlp
@@ -77,7 +77,18 @@ def pixels_to_target(pixels: torch.Tensor) -> torch.Tensor:
 
 
 class Actor(nn.Module):
-    """Dreamer actor: tanh-squashed Gaussian over actions in [-1, 1].
+    """Dreamer actor: a distribution over actions in [-1, 1].
+
+    Two forms (``distribution``):
+
+    * ``"tanh_normal"`` (DreamerV1's form, without its bound on the mean): a Gaussian
+      squashed by ``tanh``. Its pre-tanh mean is unbounded, so once it passes ~3 the
+      expected action barely moves with it (d E[a] / d mean ~0.01) and the log-det of the
+      squashing drives the entropy far below zero.
+    * ``"trunc_normal"`` (DreamerV2's): a Gaussian truncated to [-1, 1] whose mean is
+      ``tanh`` of the network's output and whose std is ``2 sigmoid(x / 2) + min_std``.
+      Samples are not squashed, so a mean at the bound still explores and still gets a
+      gradient (d E[a] / d mean ~0.4 at mean 0.999, std 0.3).
 
     Examples:
         >>> actor = Actor(6, action_dim=2, hidden=8)
@@ -85,17 +96,29 @@ class Actor(nn.Module):
         torch.Size([3, 2])
         >>> actor.distribution(torch.zeros(3, 6)).rsample().shape
         torch.Size([3, 2])
+        >>> v2 = Actor(6, action_dim=2, hidden=8, distribution="trunc_normal")
+        >>> bool(v2.distribution(torch.zeros(3, 6)).rsample().abs().max() <= 1)
+        True
     """
 
+    DISTRIBUTIONS = ("tanh_normal", "trunc_normal")
+
     def __init__(self, feature_dim: int, action_dim: int, hidden: int = 400, layers: int = 4,
-                 min_std: float = 0.1, init_std: float = 1.0):
+                 min_std: float = 0.1, init_std: float = 1.0,
+                 distribution: str = "tanh_normal"):
         super().__init__()
-        self.action_dim, self.min_std = action_dim, min_std
+        if distribution not in self.DISTRIBUTIONS:
+            raise ValueError(f"Actor: unknown distribution {distribution!r}; valid: "
+                             f"{list(self.DISTRIBUTIONS)}")
+        self.action_dim, self.min_std, self.kind = action_dim, min_std, distribution
         self._init_bias = torch.log(torch.expm1(torch.tensor(init_std)))
         self.net = mlp(feature_dim, 2 * action_dim, hidden, layers)
 
-    def distribution(self, features: torch.Tensor) -> TanhNormal:
+    def distribution(self, features: torch.Tensor) -> TanhNormal | TruncatedNormal:
         mean, raw_std = self.net(features).chunk(2, -1)
+        if self.kind == "trunc_normal":
+            std = 2 * torch.sigmoid(raw_std / 2) + self.min_std
+            return TruncatedNormal(torch.tanh(mean), std, low=-1.0, high=1.0)
         std = nn.functional.softplus(raw_std + self._init_bias.to(raw_std)) + self.min_std
         # The pre-tanh mean is unbounded: TorchRL's ``upscale`` only acts with
         # ``tanh_loc=True``, so it was never DreamerV1's ``5 * tanh(mean / 5)``. Every
@@ -104,7 +127,7 @@ class Actor(nn.Module):
         return TanhNormal(mean, std)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        """Deterministic action (the distribution's mode)."""
+        """Deterministic action (the distribution's mode; ``tanh`` of the mean either way)."""
         mean, _ = self.net(features).chunk(2, -1)
         return torch.tanh(mean)
 

@@ -231,6 +231,11 @@ class Config:
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
     critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
+    # the pixel Dreamers' actor (DreamerConfig.actor_distribution / .exploration): the
+    # teacher's form, "tanh_normal" explored with the mode plus noise, or DreamerV2's
+    # "trunc_normal" explored by sampling it
+    pixel_actor_distribution: str = "tanh_normal"
+    pixel_exploration: str = "noise"
     # evaluation on held-out scenes
     eval_episodes: int = 10  # measured: with 4, one student scored 209 and 250 on two draws
     eval_steps: int = 500  # steps per evaluation episode
@@ -330,6 +335,7 @@ class Config:
               f"snapshots, got {self.teacher_snapshots} (lower --teacher-snapshots with "
               f"--env-steps)")
         check_builds("dreamer", self.dreamer)
+        check_builds("pixel_actor_distribution", self.pixel_dreamer)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
 
@@ -350,6 +356,12 @@ class Config:
         return DreamerConfig(size=self.model_size, horizon=self.horizon,
                              imagination_starts=self.imagination_starts,
                              actor_lr=self.actor_lr, critic_lr=self.critic_lr)
+
+    def pixel_dreamer(self) -> DreamerConfig:
+        """The pixel Dreamers' config: the teacher's, with their own actor form."""
+        return dataclasses.replace(self.dreamer(),
+                                   actor_distribution=self.pixel_actor_distribution,
+                                   exploration=self.pixel_exploration)
 
 
 PRESETS = {
@@ -815,8 +827,9 @@ def pixel_dreamer_stage(cfg: Config, task: str, seed: int, visual, stage_dir: Pa
     """A pixel-Dreamer baseline; ``state_recon``: its decoder reconstructs the state."""
     torch.manual_seed(seed)
     n_state, n_action = state_dim(task)
-    agent = (DreamerAgent.for_pixels_state_recon(n_action, n_state, cfg.dreamer())
-             if state_recon else DreamerAgent.for_pixels(n_action, cfg.dreamer())).to(cfg.device)
+    agent = (DreamerAgent.for_pixels_state_recon(n_action, n_state, cfg.pixel_dreamer())
+             if state_recon else DreamerAgent.for_pixels(n_action, cfg.pixel_dreamer())
+             ).to(cfg.device)
     env = control_env(task, seed, pixels=True, visual=visual,
                       max_episode_steps=cfg.episode_steps, primer=agent.make_primer(),
                       camera_id=cfg.camera_id)
