@@ -1,6 +1,8 @@
 """The Dreamer agent acts recurrently inside TorchRL rollouts and its updates learn."""
 
+import pytest
 import torch
+from tensordict import TensorDict
 from torchrl.envs import InitTracker, TransformedEnv
 
 from simdist.agents import DreamerAgent, DreamerConfig
@@ -51,3 +53,33 @@ def test_updates_learn_the_world_model_and_keep_terms_finite():
         last = agent.update(batch.clone())
     assert last["loss_reconstruction"] < first["loss_reconstruction"] / 3
     assert all(torch.isfinite(torch.tensor(v)) for v in last.values())
+
+
+def test_dreamer_v2_actor_explores_by_sampling_inside_the_box_and_learns():
+    """DreamerConfig(actor_distribution="trunc_normal", exploration="sample"): collection
+    draws from the actor (no added noise), evaluation takes its mode, and updates run."""
+    torch.manual_seed(0)
+    config = DreamerConfig(size="tiny", actor_distribution="trunc_normal", exploration="sample")
+    agent = DreamerAgent.for_state(4, 2, config)
+    assert agent.actor.kind == "trunc_normal"
+    explore, greedy = agent.policy(explore=True), agent.policy(explore=False)
+    assert (explore.sample, explore.noise) == (True, 0.0)
+    assert (greedy.sample, greedy.noise) == (False, 0.0)
+    obs = TensorDict({"state": torch.zeros(256, 4),
+                      "is_init": torch.ones(256, 1, dtype=torch.bool)}, [256])
+    torch.manual_seed(1)  # the same latent draws in both calls: the actor's draw differs
+    sampled = explore(obs.clone())["action"]
+    torch.manual_seed(1)
+    mode = greedy(obs.clone())["action"]
+    torch.manual_seed(1)
+    assert torch.equal(greedy(obs.clone())["action"], mode)
+    assert (sampled.abs() <= 1).all() and (sampled - mode).std(0).min() > 0.1
+    batch = linear_system_batch(batch=8, time=10, obs_dim=4, action_dim=2)
+    terms = agent.update(batch)
+    assert all(torch.isfinite(torch.tensor(v)) for v in terms.values())
+
+
+def test_dreamer_config_refuses_unknown_actor_forms():
+    for field, value in (("actor_distribution", "beta"), ("exploration", "epsilon")):
+        with pytest.raises(ValueError, match=f"unknown {field} '{value}'"):
+            DreamerConfig(**{field: value})

@@ -523,9 +523,21 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
     other = json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10_slices3_camera1" /
                         "result_40.json").read_text())
     assert (other["slices"], other["camera_id"], other["device"]) == (3, 1, "cpu")
-    proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
-                      "--slices", "3", "--out", out, capsys=capsys)
-    assert proc.returncode == 2 and "--slices is the Dreamer's" in proc.stderr
+    # DreamerV2's actor, explored by sampling, at another learning rate: its own folder
+    proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40,
+                      "--train-every", "10", "--actor-distribution", "trunc_normal",
+                      "--exploration", "sample", "--actor-lr", "8e-05", "--out", out,
+                      capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    v2 = json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10_actor_trunc_normal"
+                           "_explore_sample_lr8e-05" / "result_40.json").read_text())
+    assert (v2["actor_distribution"], v2["exploration"], v2["actor_lr"]) == (
+        "trunc_normal", "sample", 8e-5)
+    assert first["actor_distribution"] == "tanh_normal" and first["exploration"] == "noise"
+    for flag, value in (("--slices", "3"), ("--exploration", "sample")):
+        proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
+                          flag, value, "--out", out, capsys=capsys)
+        assert proc.returncode == 2 and "are the Dreamer's" in proc.stderr
     # its control: the same SAC with a state actor (benchmarks/state_sac_budget.py)
     proc = _benchmark("state_sac_budget", "--steps", 60, "--prefill", 20, "--train-every",
                       10, "--n-step", 2, "--eval-episodes", 1, capsys=capsys)
