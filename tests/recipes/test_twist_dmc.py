@@ -969,3 +969,22 @@ def test_a_folder_from_before_the_sac_critic_options_reads_as_what_it_ran(tmp_pa
         recipe.stage_runner(now)
     recipe.stage_runner(dataclasses.replace(saved, output_dir=str(tmp_path))).close()
     recipe.stage_runner(dataclasses.replace(now, baselines=False)).close()
+
+
+def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(tmp_path):
+    from simdist.utils.cli import ConfigError
+
+    recipe = _recipe_module()
+    for field, bad in (("pixel_actor_distribution", "beta"), ("pixel_exploration", "greedy")):
+        with pytest.raises(ConfigError, match=f"unknown {field.removeprefix('pixel_')}"):
+            recipe.Config(**{field: bad})
+    cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "output_dir": str(tmp_path),
+                           "pixel_actor_distribution": "trunc_normal",
+                           "pixel_exploration": "sample"})
+    assert (cfg.dreamer().actor_distribution, cfg.dreamer().exploration) == (
+        "tanh_normal", "noise")
+    result = recipe.pixel_dreamer_stage(cfg, "cartpole-balance", 0, None, tmp_path / "px")
+    agent = load_agent(result["agent"])
+    assert (agent.config.actor_distribution, agent.config.exploration) == (
+        "trunc_normal", "sample")
+    assert agent.actor.kind == "trunc_normal"

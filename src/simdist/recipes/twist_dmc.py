@@ -231,10 +231,11 @@ class Config:
     # DreamerV2's 8e-5 needs ~10x more updates than a CPU budget allows (measured)
     actor_lr: float = 3e-4  # actor learning rate (teacher and pixel Dreamers)
     critic_lr: float = 3e-4  # critic learning rate (teacher and pixel Dreamers)
-    # the pixel Dreamers' actor (DreamerConfig.actor_distribution / .exploration): the
-    # teacher's form, "tanh_normal" explored with the mode plus noise, or DreamerV2's
-    # "trunc_normal" explored by sampling it
+    # the pixel Dreamers' actor (DreamerConfig.actor_distribution): the teacher's
+    # "tanh_normal" or DreamerV2's "trunc_normal"
     pixel_actor_distribution: str = "tanh_normal"
+    # how the pixel Dreamers explore (DreamerConfig.exploration): "noise", the actor's
+    # mode plus noise (the teacher's), or "sample", draws from the actor (DreamerV2)
     pixel_exploration: str = "noise"
     # evaluation on held-out scenes
     eval_episodes: int = 10  # measured: with 4, one student scored 209 and 250 on two draws
@@ -335,7 +336,7 @@ class Config:
               f"snapshots, got {self.teacher_snapshots} (lower --teacher-snapshots with "
               f"--env-steps)")
         check_builds("dreamer", self.dreamer)
-        check_builds("pixel_actor_distribution", self.pixel_dreamer)
+        check_builds("pixel_actor_distribution / pixel_exploration", self.pixel_dreamer)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
 
