@@ -988,3 +988,29 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
     assert (agent.config.actor_distribution, agent.config.exploration) == (
         "trunc_normal", "sample")
     assert agent.actor.kind == "trunc_normal"
+
+
+def test_dreamer_latent_probe_reads_saved_and_training_checkpoints(tmp_path, capsys):
+    """benchmarks/dreamer_latent_probe.py: R^2 per state dimension of a trained and a
+    re-drawn pixel Dreamer, from a saved agent or an online run's training checkpoint;
+    a state Dreamer is refused."""
+    from simdist.agents import DreamerAgent
+    from simdist.utils import save_atomic
+
+    recipe = _recipe_module()
+    cfg = recipe.Config(**recipe.PRESETS["tiny"])
+    agent = DreamerAgent.for_pixels(1, cfg.pixel_dreamer())
+    saved = agent.save(tmp_path / "dreamer_agent.pt")
+    save_atomic({"agent": agent.state_dict()}, tmp_path / "agent.pt")
+    for args in (("--agent", saved), ("--training", "--preset", "tiny", "--agent",
+                                      tmp_path / "agent.pt")):
+        out = tmp_path / "probe.json"
+        proc = _benchmark("dreamer_latent_probe", *args, "--episodes", 2, "--steps", 6,
+                          "--json", out, capsys=capsys)
+        assert proc.returncode == 0, proc.stderr
+        result = json.loads(out.read_text())
+        assert len(result["r2_trained"]) == len(result["r2_untrained"]) == 5
+        assert all(r <= 1 for r in result["r2_trained"] + result["r2_untrained"])
+    state = DreamerAgent.for_state(5, 1, cfg.dreamer()).save(tmp_path / "state.pt")
+    proc = _benchmark("dreamer_latent_probe", "--agent", state, capsys=capsys)
+    assert proc.returncode == 2 and "is not a pixel Dreamer agent" in proc.stderr

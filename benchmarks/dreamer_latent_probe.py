@@ -1,0 +1,141 @@
+"""What does a pixel Dreamer's latent know of the state? (not a speed benchmark)
+
+Filters episodes of uniform random actions (images and the privileged state of every
+step, dm_control's own scene unless ``--dr``) through a saved Dreamer agent's encoder and
+RSSM, as its policy does when it acts, and fits a ridge regression from the posterior
+features ``[belief, stoch]`` to each state dimension on half of the episodes (ridge 0.1
+on standardised features; a linear probe, so a lower bound on what the latent carries);
+prints the R^2 on the other half. The same agent with its weights re-drawn (``untrained``) is the
+floor: what an untrained recurrent filter of these images carries by chance.
+
+``--agent`` is a saved agent (``dreamer_agent.pt``, self-describing) or, with
+``--training``, the checkpoint an online run keeps beside its episodes (``agent.pt``: the
+weights only, rebuilt as the recipe's pixel Dreamer of ``--preset`` with the given actor
+form), so a run stopped before its end can be probed.
+
+Usage:
+    python benchmarks/dreamer_latent_probe.py --agent RUN/.../dreamer_agent.pt
+    python benchmarks/dreamer_latent_probe.py --training --agent STAGE/agent.pt \
+        --actor-distribution trunc_normal
+    python benchmarks/dreamer_latent_probe.py --agent A.pt --episodes 32 --steps 250 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from simdist.agents import DreamerAgent
+from simdist.agents.checkpoint import load_agent
+from simdist.envs import VisualRandomisation
+from simdist.pipelines.control import control_env
+from simdist.recipes import twist_dmc as recipe
+from simdist.utils import load_checkpoint
+
+
+def collect(task: str, seed: int, episodes: int, steps: int, camera_id, dr: bool) -> list:
+    """Episodes of uniform random actions with ``pixels``, ``state`` and ``action``."""
+    env = control_env(task, seed, pixels=True, max_episode_steps=steps, camera_id=camera_id,
+                      visual=VisualRandomisation.training() if dr else None)
+    out = []
+    for i in range(episodes):
+        env.set_seed(seed + i)
+        td = env.rollout(steps, break_when_any_done=False)
+        out.append(td.select("pixels", "state", "action"))
+    env.close()
+    return out
+
+
+@torch.no_grad()
+def features(agent: DreamerAgent, episode) -> torch.Tensor:
+    """``[T, feature]`` posterior features: the RSSM filters the episode from its start,
+    each step conditioned on the action that led to its image (zero at the first)."""
+    wm = agent.world_model
+    pixels = episode["pixels"][None]
+    action = episode["action"][None].float()
+    prev_action = torch.cat([torch.zeros_like(action[:, :1]), action[:, :-1]], 1)
+    is_first = torch.zeros(pixels.shape[:2], dtype=torch.bool)
+    is_first[:, 0] = True
+    post = wm.rssm.observe(wm.encoder(pixels), prev_action, is_first)
+    return torch.cat([post["belief"], post["stoch"]], -1)[0]
+
+
+def ridge_r2(x_fit, y_fit, x_test, y_test, ridge: float = 0.1) -> list[float]:
+    """Per output dimension, 1 - MSE / variance on the test rows of a ridge fit.
+
+    Examples:
+        >>> _ = torch.manual_seed(0)
+        >>> x = torch.randn(200, 3)
+        >>> y = torch.stack([x[:, 0] * 2, torch.randn(200)], -1)
+        >>> r2 = ridge_r2(x[:100], y[:100], x[100:], y[100:], ridge=1e-3)
+        >>> r2[0] > 0.99, r2[1] < 0.1
+        (True, True)
+    """
+    mean_x, std_x = x_fit.mean(0), x_fit.std(0).clamp_min(1e-6)
+    mean_y = y_fit.mean(0)
+    a = torch.cat([(x_fit - mean_x) / std_x, torch.ones(len(x_fit), 1)], -1).double()
+    b = (y_fit - mean_y).double()
+    w = torch.linalg.solve(a.T @ a + ridge * len(a) * torch.eye(a.shape[1], dtype=a.dtype),
+                           a.T @ b)
+    test = torch.cat([(x_test - mean_x) / std_x, torch.ones(len(x_test), 1)], -1).double()
+    error = (test @ w + mean_y - y_test).pow(2).mean(0)
+    return [round(float(v), 3) for v in 1 - error / y_test.double().var(0)]
+
+
+def probe(agent: DreamerAgent, episodes: list) -> list[float]:
+    half = len(episodes) // 2
+    feats = [features(agent, e) for e in episodes]
+    states = [e["state"].float() for e in episodes]
+    return ridge_r2(torch.cat(feats[:half]), torch.cat(states[:half]),
+                    torch.cat(feats[half:]), torch.cat(states[half:]))
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--agent", required=True, help="a saved pixel DreamerAgent (.pt)")
+    parser.add_argument("--task", default="cartpole-balance")
+    parser.add_argument("--seed", type=int, default=123)
+    parser.add_argument("--episodes", type=int, default=16, help="half fit, half test")
+    parser.add_argument("--steps", type=int, default=200, help="steps per episode")
+    parser.add_argument("--camera-id", type=int, help="as the agent trained (default: task's)")
+    parser.add_argument("--dr", action="store_true", help="the recipe's training DR scenes")
+    parser.add_argument("--training", action="store_true",
+                        help="--agent is an online run's training checkpoint (agent.pt)")
+    parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
+                        help="--training: the recipe preset whose pixel Dreamer it is")
+    parser.add_argument("--actor-distribution", default="tanh_normal",
+                        choices=["tanh_normal", "trunc_normal"],
+                        help="--training: the run's actor form")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--json", help="also write the result here")
+    args = parser.parse_args(argv)
+    if args.episodes < 2 or args.steps < 2:
+        parser.error("need --episodes >= 2 and --steps >= 2")
+    torch.set_num_threads(args.threads)
+    if args.training:
+        cfg = recipe.Config(**{**recipe.PRESETS[args.preset],
+                               "pixel_actor_distribution": args.actor_distribution})
+        agent = DreamerAgent.for_pixels(recipe.state_dim(args.task)[1], cfg.pixel_dreamer())
+        agent.load_state_dict(load_checkpoint(args.agent)["agent"])
+    else:
+        agent = load_agent(args.agent)
+    if not isinstance(agent, DreamerAgent) or agent.obs_key != "pixels":
+        parser.error(f"{args.agent} is not a pixel Dreamer agent")
+    torch.manual_seed(args.seed)
+    episodes = collect(args.task, args.seed, args.episodes, args.steps, args.camera_id, args.dr)
+    untrained = DreamerAgent.from_config(agent.describe())
+    result = {"agent": str(args.agent), "task": args.task, "episodes": args.episodes,
+              "steps": args.steps, "dr": args.dr, "camera_id": args.camera_id,
+              "state_std": [round(float(v), 3)
+                            for v in torch.cat([e["state"] for e in episodes]).std(0)],
+              "r2_trained": probe(agent, episodes), "r2_untrained": probe(untrained, episodes)}
+    print(json.dumps(result))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
