@@ -93,16 +93,16 @@ def main(argv=None) -> None:
         parser.error("--slices, --actor-distribution, --exploration and --actor-lr are the "
                      "Dreamer's (--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
-    # a Dreamer option that is set names the run's folder; unset, the preset's applies
-    suffix = "".join(f"_{tag}{getattr(args, o):g}" if isinstance(getattr(args, o), float)
-                     else f"_{tag}{getattr(args, o)}"
-                     for o, tag in (("actor_distribution", "actor_"),
-                                    ("exploration", "explore_"), ("actor_lr", "lr"))
-                     if getattr(args, o) is not None)
-    actor = {field: getattr(args, o) for o, field in
-             (("actor_distribution", "pixel_actor_distribution"),
-              ("exploration", "pixel_exploration"), ("actor_lr", "actor_lr"),
-              ("actor_lr", "critic_lr")) if getattr(args, o) is not None}
+    # a Dreamer actor option that is set names the run's folder and overrides its config
+    # fields; unset, the preset's applies
+    suffix, actor = "", {}
+    for option, tag, fields in (("actor_distribution", "actor_", ["pixel_actor_distribution"]),
+                                ("exploration", "explore_", ["pixel_exploration"]),
+                                ("actor_lr", "lr", ["actor_lr", "critic_lr"])):
+        value = getattr(args, option)
+        if value is not None:
+            suffix += f"_{tag}{value:g}" if isinstance(value, float) else f"_{tag}{value}"
+            actor.update(dict.fromkeys(fields, value))
     for option, field in sac_options.items():  # unset: the preset's own setting
         if getattr(args, option) is None:
             setattr(args, option, getattr(preset, field))
