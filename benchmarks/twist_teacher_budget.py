@@ -15,6 +15,7 @@ from the stored episodes and checkpoint.
 Usage:
     python benchmarks/twist_teacher_budget.py --seeds 0 1 --steps 10000 --chunk 2000
     python benchmarks/twist_teacher_budget.py --task cheetah-run --seeds 0 --steps 6000
+    python benchmarks/twist_teacher_budget.py --seeds 0 1 --return-normalisation percentile
     python benchmarks/twist_teacher_budget.py --preset tiny --steps 40 --chunk 20  # the test
 """
 
@@ -33,6 +34,12 @@ from simdist.pipelines import (control_env, dreamer_keys, stage_seed,
 from simdist.recipes import twist_dmc as recipe
 
 
+def run_name(cfg: recipe.Config, task: str, seed: int) -> str:
+    """The run's folder: one per task, seed and (when not the default) return scaling."""
+    suffix = "" if cfg.return_normalisation == "none" else f"_return_{cfg.return_normalisation}"
+    return f"{task}_s{seed}{suffix}"
+
+
 def teacher_curve(cfg: recipe.Config, task: str, seed: int, steps: int, chunk: int,
                   out: Path) -> list[dict]:
     """The Oracle's held-out-seed return after every ``chunk`` steps up to ``steps``."""
@@ -45,7 +52,7 @@ def teacher_curve(cfg: recipe.Config, task: str, seed: int, steps: int, chunk: i
         for budget in range(chunk, steps + 1, chunk):
             start = time.perf_counter()
             online = dataclasses.replace(cfg, env_steps=budget).online()
-            run = train_dreamer_online(agent, env, online, out / f"{task}_s{seed}",
+            run = train_dreamer_online(agent, env, online, out / run_name(cfg, task, seed),
                                        dreamer_keys("state"), desc=f"teacher {task} s{seed}",
                                        seed=stage_seed(seed, f"{task}/teacher"))
             oracle = recipe.evaluate(cfg, task, seed, agent.policy(explore=False),
@@ -70,6 +77,9 @@ def main(argv=None) -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
                         help="the recipe preset whose teacher settings to use")
+    parser.add_argument("--return-normalisation", choices=["none", "percentile"],
+                        help="the actor's returns as they come or divided by their running "
+                             "percentile range, DreamerV3's (default: the preset's)")
     args = parser.parse_args(argv)
     if args.chunk < 1 or args.steps < args.chunk:
         parser.error("need 1 <= --chunk <= --steps")
@@ -77,6 +87,8 @@ def main(argv=None) -> None:
     # the curve of the last weights at each budget: no snapshot selection
     cfg = recipe.Config(**{**recipe.PRESETS[args.preset], "tasks": [args.task],
                            "seeds": args.seeds, "teacher_snapshots": 0})
+    if args.return_normalisation is not None:
+        cfg = dataclasses.replace(cfg, return_normalisation=args.return_normalisation)
     out = Path(args.out)
     results = {"references": {}, "curves": {}}
     for seed in args.seeds:
@@ -90,7 +102,8 @@ def main(argv=None) -> None:
         print(f"{budget:>5}  " + "  ".join(f"{results['curves'][s][i]['oracle_mean']:8.0f}"
                                           for s in args.seeds))
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"{args.task}.json").write_text(json.dumps(results, indent=1))
+    name = run_name(cfg, args.task, 0).replace("_s0", "")
+    (out / f"{name}.json").write_text(json.dumps(results, indent=1))
 
 
 if __name__ == "__main__":

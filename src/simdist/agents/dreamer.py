@@ -26,6 +26,7 @@ from simdist.agents.describe import build_dreamer_model, describe_dreamer_model
 from simdist.modules import Actor, DreamerWorldModel, ScalarHead
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss
+from simdist.objectives.return_scale import ReturnScale
 from simdist.utils.device import module_device, move_to_device
 
 
@@ -58,6 +59,9 @@ class DreamerConfig:
     # how the policy explores: "noise", its mode plus exploration_noise (DreamerV1), or
     # "sample", a draw from the actor's distribution (DreamerV2; exploration_noise unused)
     exploration: str = "noise"
+    # the actor's returns: "none", as they come (DreamerV2), or "percentile", divided by
+    # their running 95th-5th percentile range when above 1 (DreamerV3; ReturnScale)
+    return_normalisation: str = "none"
 
     def __post_init__(self):
         if self.actor_distribution not in Actor.DISTRIBUTIONS:
@@ -66,9 +70,14 @@ class DreamerConfig:
         if self.exploration not in EXPLORATIONS:
             raise ValueError(f"DreamerConfig: unknown exploration {self.exploration!r}; "
                              f"valid: {list(EXPLORATIONS)}")
+        if self.return_normalisation not in RETURN_NORMALISATIONS:
+            raise ValueError(f"DreamerConfig: unknown return_normalisation "
+                             f"{self.return_normalisation!r}; "
+                             f"valid: {list(RETURN_NORMALISATIONS)}")
 
 
 EXPLORATIONS = ("noise", "sample")
+RETURN_NORMALISATIONS = ("none", "percentile")
 
 
 class DreamerPolicy(TensorDictModuleBase):
@@ -167,7 +176,8 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         self.behaviour_loss = DreamerActorCriticLoss(
             world_model, self.actor, self.critic, horizon=config.horizon,
             entropy_coeff=config.entropy_coeff, max_starts=config.imagination_starts,
-            actor_input_noise=config.actor_input_noise)
+            actor_input_noise=config.actor_input_noise,
+            return_scale=ReturnScale() if config.return_normalisation == "percentile" else None)
         self.model_optim = torch.optim.Adam(world_model.parameters(), lr=config.model_lr)
         self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
         self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
@@ -230,13 +240,17 @@ class DreamerAgent(ckpt_format.LoadableAgent):
                 "target_critic": self.behaviour_loss.target_critic.state_dict(),
                 "model_optim": self.model_optim.state_dict(),
                 "actor_optim": self.actor_optim.state_dict(),
-                "critic_optim": self.critic_optim.state_dict()}
+                "critic_optim": self.critic_optim.state_dict(),
+                **({} if self.behaviour_loss.return_scale is None else
+                   {"return_scale": self.behaviour_loss.return_scale.state_dict()})}
 
     def load_state_dict(self, state: dict) -> None:
         self.world_model.load_state_dict(state["world_model"])
         self.actor.load_state_dict(state["actor"])
         self.critic.load_state_dict(state["critic"])
         self.behaviour_loss.target_critic.load_state_dict(state["target_critic"])
+        if self.behaviour_loss.return_scale is not None:
+            self.behaviour_loss.return_scale.load_state_dict(state["return_scale"])
         for name in ("model_optim", "actor_optim", "critic_optim"):
             getattr(self, name).load_state_dict(state[name])
 
@@ -250,10 +264,14 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         return out
 
     def weights(self) -> dict:
-        """Every network's state dict (target critic included), no optimiser state."""
-        return {"world_model": self.world_model.state_dict(), "actor": self.actor.state_dict(),
-                "critic": self.critic.state_dict(),
-                "target_critic": self.behaviour_loss.target_critic.state_dict()}
+        """Every network's state dict (target critic included), no optimiser state; with
+        return normalisation also the running percentiles, so a resumed run keeps them."""
+        out = {"world_model": self.world_model.state_dict(), "actor": self.actor.state_dict(),
+               "critic": self.critic.state_dict(),
+               "target_critic": self.behaviour_loss.target_critic.state_dict()}
+        if self.behaviour_loss.return_scale is not None:
+            out["return_scale"] = self.behaviour_loss.return_scale.state_dict()
+        return out
 
     def save(self, path: str | os.PathLike, optimisers: bool = True,
              meta: dict | None = None) -> Path:
@@ -292,8 +310,11 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         """Loads :meth:`weights`' dict (strict; errors name ``path`` and the part)."""
         for name, module in (("world_model", self.world_model), ("actor", self.actor),
                              ("critic", self.critic),
-                             ("target_critic", self.behaviour_loss.target_critic)):
-            ckpt_format.load_weights(module, ckpt_format.part(weights, path, name), path, name)
+                             ("target_critic", self.behaviour_loss.target_critic),
+                             ("return_scale", self.behaviour_loss.return_scale)):
+            if module is not None:
+                ckpt_format.load_weights(module, ckpt_format.part(weights, path, name), path,
+                                         name)
 
     @classmethod
     def from_checkpoint(cls, ckpt: dict, path="<checkpoint>", map_location=None) -> DreamerAgent:

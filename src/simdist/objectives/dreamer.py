@@ -22,6 +22,7 @@ from simdist.modules.heads import pixels_to_target
 from simdist.modules.rssm import RSSMState
 from simdist.modules.world_model import DreamerWorldModel
 from simdist.objectives.common import SimdistLoss, sequence_batch
+from simdist.objectives.return_scale import ReturnScale
 
 
 def balanced_kl(rssm, post_logits, prior_logits, balance: float, free_nats: float):
@@ -146,6 +147,9 @@ class DreamerActorCriticLoss(SimdistLoss):
             of this many standard deviations per feature (the starts' batch std), and the
             rollout follows the actions it takes: a policy trained to act well when its
             reading of the latent is off, e.g. by a student's perception (0: DreamerV2).
+        return_scale: a :class:`ReturnScale` that the actor's returns are divided by
+            (DreamerV3's return normalisation; ``None``: unscaled, DreamerV2). The critic
+            still regresses the unscaled returns.
 
     Examples:
         >>> from simdist.modules import Actor, ScalarHead
@@ -156,6 +160,14 @@ class DreamerActorCriticLoss(SimdistLoss):
         >>> td = TensorDict({"posterior": {"belief": start.belief, "stoch": start.stoch}}, [2, 4])
         >>> sorted(loss(td).keys())
         ['entropy', 'imagined_reward', 'lambda_return', 'loss_actor', 'loss_critic']
+
+        With DreamerV3's return normalisation the output also reports the divisor:
+
+        >>> from simdist.objectives.return_scale import ReturnScale
+        >>> loss = DreamerActorCriticLoss(wm, Actor(f, 1, hidden=8), ScalarHead(f, 8), horizon=3,
+        ...                               return_scale=ReturnScale())
+        >>> "return_scale" in loss(td).keys()
+        True
     """
 
     @dataclass
@@ -168,8 +180,10 @@ class DreamerActorCriticLoss(SimdistLoss):
     def __init__(self, world_model: DreamerWorldModel, actor, critic, horizon: int = 15,
                  gamma: float = 0.99, lmbda: float = 0.95, entropy_coeff: float = 3e-4,
                  target_tau: float = 0.02, max_starts: int | None = None,
-                 actor_input_noise: float = 0.0, check_inputs: bool = True):
+                 actor_input_noise: float = 0.0, return_scale: ReturnScale | None = None,
+                 check_inputs: bool = True):
         super().__init__(check_inputs)
+        self.return_scale = return_scale
         if not actor_input_noise >= 0:
             raise ValueError(f"actor_input_noise must be >= 0, got {actor_input_noise}")
         self.actor_input_noise = float(actor_input_noise)
@@ -219,10 +233,17 @@ class DreamerActorCriticLoss(SimdistLoss):
         done = torch.zeros_like(reward, dtype=torch.bool)
         returns = td_lambda_return_estimate(self.gamma, self.lmbda, next_value, reward, done)
         entropy = -torch.stack(log_probs, 1).mean()
-        loss_actor = -returns.mean() - self.entropy_coeff * entropy
+        diag = {}
+        if self.return_scale is None:
+            loss_actor = -returns.mean() - self.entropy_coeff * entropy
+        else:
+            # a constant divisor: the gradient of the returns shrinks, the entropy's does not
+            scale = self.return_scale.update(returns)
+            loss_actor = -(returns / scale).mean() - self.entropy_coeff * entropy
+            diag["return_scale"] = scale.clone()
         value = self.critic(feats[:, :-1].detach())
         loss_critic = 0.5 * (value - returns.detach()).pow(2).mean()
         return self.finish(TensorDict({
             "loss_actor": loss_actor, "loss_critic": loss_critic,
             "imagined_reward": reward.mean().detach(), "entropy": entropy.detach(),
-            "lambda_return": returns.mean().detach()}, []))
+            "lambda_return": returns.mean().detach(), **diag}, []))
