@@ -21,6 +21,8 @@ Usage:
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 --dr     # + DR
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
         --actor-distribution trunc_normal --exploration sample     # DreamerV2's actor
+    python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
+        --return-normalisation percentile                           # DreamerV3's returns
     python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
     python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
@@ -71,6 +73,9 @@ def main(argv=None) -> None:
     parser.add_argument("--exploration", choices=["noise", "sample"],
                         help="Dreamer: explore with the mode plus noise or by sampling the "
                              "actor (default: the preset's pixel_exploration)")
+    parser.add_argument("--return-normalisation", choices=["none", "percentile"],
+                        help="Dreamer: the actor's returns as they come or divided by their "
+                             "running percentile range, DreamerV3's (default: the preset's)")
     parser.add_argument("--actor-lr", type=float,
                         help="Dreamer: actor and critic learning rate (default: the preset's)")
     parser.add_argument("--camera-id", type=int,
@@ -88,17 +93,19 @@ def main(argv=None) -> None:
                    "tau": "sac_tau"}
     if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
-    dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr")
+    dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr",
+                       "return_normalisation")
     if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
-        parser.error("--slices, --actor-distribution, --exploration and --actor-lr are the "
-                     "Dreamer's (--agent dreamer)")
+        parser.error("--slices, --actor-distribution, --exploration, --actor-lr and "
+                     "--return-normalisation are the Dreamer's (--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
     # a Dreamer actor option that is set names the run's folder and overrides its config
     # fields; unset, the preset's applies
     suffix, actor = "", {}
     for option, tag, fields in (("actor_distribution", "actor_", ["pixel_actor_distribution"]),
                                 ("exploration", "explore_", ["pixel_exploration"]),
-                                ("actor_lr", "lr", ["actor_lr", "critic_lr"])):
+                                ("actor_lr", "lr", ["actor_lr", "critic_lr"]),
+                                ("return_normalisation", "return_", ["return_normalisation"])):
         value = getattr(args, option)
         if value is not None:
             suffix += f"_{tag}{value:g}" if isinstance(value, float) else f"_{tag}{value}"
@@ -153,6 +160,7 @@ def main(argv=None) -> None:
                "camera_id": args.camera_id, "device": args.device,
                "actor_distribution": cfg.pixel_actor_distribution,
                "exploration": cfg.pixel_exploration, "actor_lr": cfg.actor_lr,
+               "return_normalisation": cfg.return_normalisation,
                "batch": args.batch if args.agent == "sac" else None,
                "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],

@@ -80,6 +80,33 @@ def test_dreamer_v2_actor_explores_by_sampling_inside_the_box_and_learns():
 
 
 def test_dreamer_config_refuses_unknown_actor_forms():
-    for field, value in (("actor_distribution", "beta"), ("exploration", "epsilon")):
+    for field, value in (("actor_distribution", "beta"), ("exploration", "epsilon"),
+                         ("return_normalisation", "zscore")):
         with pytest.raises(ValueError, match=f"unknown {field} '{value}'"):
             DreamerConfig(**{field: value})
+
+
+def test_return_normalisation_is_kept_through_updates_checkpoints_and_resumes(tmp_path):
+    """DreamerConfig(return_normalisation="percentile"): updates report and move the scale;
+    a saved agent and a training state dict carry the running percentiles, so a loaded or
+    resumed agent divides by the same scale; the default has none."""
+    torch.manual_seed(0)
+    agent = DreamerAgent.for_state(4, 2, DreamerConfig(size="tiny",
+                                                       return_normalisation="percentile"))
+    batch = linear_system_batch(batch=8, time=10, obs_dim=4, action_dim=2)
+    terms = [agent.update(batch.clone()) for _ in range(3)]
+    assert all(t["return_scale"] >= 1 for t in terms)
+    scale = agent.behaviour_loss.return_scale
+    assert int(scale.count) == 3
+    loaded = DreamerAgent.load(agent.save(tmp_path / "agent.pt"))
+    assert loaded.config.return_normalisation == "percentile"
+    for name in ("low", "high", "count"):
+        assert torch.equal(getattr(loaded.behaviour_loss.return_scale, name),
+                           getattr(scale, name))
+    resumed = DreamerAgent.for_state(4, 2, agent.config)
+    resumed.load_state_dict(agent.state_dict())
+    assert torch.equal(resumed.behaviour_loss.return_scale.high, scale.high)
+    plain = _agent(state_dim=4, action_dim=2)
+    assert plain.behaviour_loss.return_scale is None
+    assert "return_scale" not in plain.state_dict() and "return_scale" not in plain.weights()
+    assert "return_scale" not in plain.update(batch.clone())

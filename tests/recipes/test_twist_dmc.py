@@ -487,6 +487,15 @@ def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path, capsys):
     assert 0 < curve[0]["updates"] < curve[1]["updates"]
     assert set(result["references"]["0"]) == {"zero", "uniform"}
     assert (out / "cartpole-balance_s0" / "agent.pt").exists()
+    # DreamerV3's return normalisation: its own run folder and result file
+    run = _benchmark("twist_teacher_budget", "--preset", "tiny", "--steps", "20", "--chunk",
+                     "20", "--out", out, "--return-normalisation", "percentile",
+                     capsys=capsys)
+    assert run.returncode == 0, run.stderr
+    assert (out / "cartpole-balance_return_percentile.json").exists()
+    state = torch.load(out / "cartpole-balance_s0_return_percentile" / "agent.pt",
+                       weights_only=True)["agent"]  # the online run's training checkpoint
+    assert int(state["return_scale"]["count"]) > 0
 
 
 def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_path, capsys):
@@ -526,15 +535,18 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
     # DreamerV2's actor, explored by sampling, at another learning rate: its own folder
     proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40,
                       "--train-every", "10", "--actor-distribution", "trunc_normal",
-                      "--exploration", "sample", "--actor-lr", "8e-05", "--out", out,
-                      capsys=capsys)
+                      "--exploration", "sample", "--actor-lr", "8e-05",
+                      "--return-normalisation", "percentile", "--out", out, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     v2 = json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10_actor_trunc_normal"
-                           "_explore_sample_lr8e-05" / "result_40.json").read_text())
-    assert (v2["actor_distribution"], v2["exploration"], v2["actor_lr"]) == (
-        "trunc_normal", "sample", 8e-5)
+                           "_explore_sample_lr8e-05_return_percentile" / "result_40.json")
+                    .read_text())
+    assert (v2["actor_distribution"], v2["exploration"], v2["actor_lr"],
+            v2["return_normalisation"]) == ("trunc_normal", "sample", 8e-5, "percentile")
     assert first["actor_distribution"] == "tanh_normal" and first["exploration"] == "noise"
-    for flag, value in (("--slices", "3"), ("--exploration", "sample")):
+    assert first["return_normalisation"] == "none"
+    for flag, value in (("--slices", "3"), ("--exploration", "sample"),
+                        ("--return-normalisation", "percentile")):
         proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
                           flag, value, "--out", out, capsys=capsys)
         assert proc.returncode == 2 and "are the Dreamer's" in proc.stderr
@@ -975,9 +987,14 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
     from simdist.utils.cli import ConfigError
 
     recipe = _recipe_module()
-    for field, bad in (("pixel_actor_distribution", "beta"), ("pixel_exploration", "greedy")):
+    for field, bad in (("pixel_actor_distribution", "beta"), ("pixel_exploration", "greedy"),
+                       ("return_normalisation", "zscore")):
         with pytest.raises(ConfigError, match=f"unknown {field.removeprefix('pixel_')}"):
             recipe.Config(**{field: bad})
+    # return normalisation is the Dreamers' together: the teacher's and the pixel ones'
+    both = recipe.Config(return_normalisation="percentile")
+    assert both.dreamer().return_normalisation == "percentile"
+    assert both.pixel_dreamer().return_normalisation == "percentile"
     cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "output_dir": str(tmp_path),
                            "pixel_actor_distribution": "trunc_normal",
                            "pixel_exploration": "sample"})
