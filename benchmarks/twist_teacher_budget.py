@@ -59,6 +59,7 @@ def teacher_curve(cfg: recipe.Config, task: str, seed: int, steps: int, chunk: i
                                      agent.make_primer(), pixels=False)
             curve.append({"steps": budget, "updates": run["updates"],
                           "oracle_mean": oracle["mean"], "oracle_std": oracle["std"],
+                          "oracle_returns": oracle["returns"],
                           "last_training_returns": run["episode_returns"][-2:],
                           "seconds": time.perf_counter() - start})
             print(json.dumps(curve[-1]), flush=True)
