@@ -25,8 +25,7 @@ from simdist.agents.action_spec import action_bounds
 from simdist.agents.describe import build_dreamer_model, describe_dreamer_model
 from simdist.modules import Actor, DreamerWorldModel, ScalarHead
 from simdist.modules.rssm import RSSMState
-from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss
-from simdist.objectives.return_scale import ReturnScale
+from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss, ReturnScale
 from simdist.utils.device import module_device, move_to_device
 
 

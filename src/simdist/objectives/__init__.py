@@ -5,10 +5,12 @@ from simdist.objectives.distillation import TwistDistillationLoss
 from simdist.objectives.dreamer import DreamerActorCriticLoss, DreamerWorldModelLoss, balanced_kl
 from simdist.objectives.imagined_alignment import ImaginedAlignmentLoss
 from simdist.objectives.probe import ProbeLoss
+from simdist.objectives.return_scale import ReturnScale
 from simdist.objectives.simdist_pretrain import (DynamicsFinetuneLoss, SimDistPretrainLoss,
                                                 latent_prediction_error, latent_prediction_skill)
 
 __all__ = ["SimdistLoss", "TwistDistillationLoss", "DreamerActorCriticLoss",
            "DreamerWorldModelLoss", "balanced_kl", "ImaginedAlignmentLoss", "ProbeLoss",
+           "ReturnScale",
            "DynamicsFinetuneLoss", "SimDistPretrainLoss", "latent_prediction_error",
            "latent_prediction_skill"]
