@@ -38,6 +38,7 @@ from pathlib import Path
 import torch
 
 from simdist.agents.checkpoint import load_agent
+from simdist.agents.dreamer import RETURN_NORMALISATIONS
 from simdist.envs import VisualRandomisation
 from simdist.pipelines import evaluate_returns
 from simdist.recipes import twist_dmc as recipe
@@ -73,7 +74,7 @@ def main(argv=None) -> None:
     parser.add_argument("--exploration", choices=["noise", "sample"],
                         help="Dreamer: explore with the mode plus noise or by sampling the "
                              "actor (default: the preset's pixel_exploration)")
-    parser.add_argument("--return-normalisation", choices=["none", "percentile"],
+    parser.add_argument("--return-normalisation", choices=RETURN_NORMALISATIONS,
                         help="Dreamer: the actor's returns as they come or divided by their "
                              "running percentile range, DreamerV3's (default: the preset's)")
     parser.add_argument("--actor-lr", type=float,

@@ -29,15 +29,16 @@ from pathlib import Path
 
 import torch
 
+from simdist.agents.dreamer import RETURN_NORMALISATIONS
 from simdist.pipelines import (control_env, dreamer_keys, stage_seed,
                                train_dreamer_online)
 from simdist.recipes import twist_dmc as recipe
 
 
-def run_name(cfg: recipe.Config, task: str, seed: int) -> str:
-    """The run's folder: one per task, seed and (when not the default) return scaling."""
-    suffix = "" if cfg.return_normalisation == "none" else f"_return_{cfg.return_normalisation}"
-    return f"{task}_s{seed}{suffix}"
+def variant(cfg: recipe.Config) -> str:
+    """What the run's folder and result file add to the task's name: the return scaling,
+    when not the default."""
+    return "" if cfg.return_normalisation == "none" else f"_return_{cfg.return_normalisation}"
 
 
 def teacher_curve(cfg: recipe.Config, task: str, seed: int, steps: int, chunk: int,
@@ -52,7 +53,8 @@ def teacher_curve(cfg: recipe.Config, task: str, seed: int, steps: int, chunk: i
         for budget in range(chunk, steps + 1, chunk):
             start = time.perf_counter()
             online = dataclasses.replace(cfg, env_steps=budget).online()
-            run = train_dreamer_online(agent, env, online, out / run_name(cfg, task, seed),
+            run = train_dreamer_online(agent, env, online,
+                                       out / f"{task}_s{seed}{variant(cfg)}",
                                        dreamer_keys("state"), desc=f"teacher {task} s{seed}",
                                        seed=stage_seed(seed, f"{task}/teacher"))
             oracle = recipe.evaluate(cfg, task, seed, agent.policy(explore=False),
@@ -78,7 +80,7 @@ def main(argv=None) -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
                         help="the recipe preset whose teacher settings to use")
-    parser.add_argument("--return-normalisation", choices=["none", "percentile"],
+    parser.add_argument("--return-normalisation", choices=RETURN_NORMALISATIONS,
                         help="the actor's returns as they come or divided by their running "
                              "percentile range, DreamerV3's (default: the preset's)")
     args = parser.parse_args(argv)
@@ -103,8 +105,7 @@ def main(argv=None) -> None:
         print(f"{budget:>5}  " + "  ".join(f"{results['curves'][s][i]['oracle_mean']:8.0f}"
                                           for s in args.seeds))
     out.mkdir(parents=True, exist_ok=True)
-    name = run_name(cfg, args.task, 0).replace("_s0", "")
-    (out / f"{name}.json").write_text(json.dumps(results, indent=1))
+    (out / f"{args.task}{variant(cfg)}.json").write_text(json.dumps(results, indent=1))
 
 
 if __name__ == "__main__":

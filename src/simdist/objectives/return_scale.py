@@ -59,12 +59,12 @@ class ReturnScale(nn.Module):
         if not torch.isfinite(values).all():
             raise FloatingPointError("ReturnScale.update: the returns are not finite; check "
                                      "the learning rates and the reward and value heads")
-        low, high = torch.quantile(values, self.quantiles.to(values))
-        if self.count == 0:
-            self.low.copy_(low), self.high.copy_(high)
-        else:
-            self.low.lerp_(low.to(self.low), 1 - self.decay)
-            self.high.lerp_(high.to(self.high), 1 - self.decay)
+        low, high = torch.quantile(values, self.quantiles.to(values)).to(self.low)
+        # the first batch sets the percentiles outright (weight 1); tensor ops, so no host
+        # sync on an accelerator
+        weight = torch.where(self.count == 0, 1.0, 1 - self.decay).to(self.low)
+        self.low.lerp_(low, weight)
+        self.high.lerp_(high, weight)
         self.count += 1
         return self.scale()
 
