@@ -23,6 +23,8 @@ Usage:
         --actor-distribution trunc_normal --exploration sample     # DreamerV2's actor
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
         --return-normalisation percentile                           # DreamerV3's returns
+    python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
+        --actor-gradient reinforce                                  # DreamerV3's estimator
     python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
     python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
@@ -39,6 +41,7 @@ import torch
 
 from simdist.agents.checkpoint import load_agent
 from simdist.agents.dreamer import RETURN_NORMALISATIONS
+from simdist.objectives.dreamer import ACTOR_GRADIENTS
 from simdist.envs import VisualRandomisation
 from simdist.pipelines import evaluate_returns
 from simdist.recipes import twist_dmc as recipe
@@ -77,6 +80,11 @@ def main(argv=None) -> None:
     parser.add_argument("--return-normalisation", choices=RETURN_NORMALISATIONS,
                         help="Dreamer: the actor's returns as they come or divided by their "
                              "running percentile range, DreamerV3's (default: the preset's)")
+    parser.add_argument("--actor-gradient", choices=ACTOR_GRADIENTS,
+                        help="Dreamer: the actor's gradient, backpropagated through the world "
+                             "model (dynamics) or the score function with the critic as "
+                             "baseline (reinforce, DreamerV3's) (default: the preset's "
+                             "pixel_actor_gradient)")
     parser.add_argument("--actor-lr", type=float,
                         help="Dreamer: actor and critic learning rate (default: the preset's)")
     parser.add_argument("--camera-id", type=int,
@@ -95,10 +103,11 @@ def main(argv=None) -> None:
     if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
     dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr",
-                       "return_normalisation")
+                       "return_normalisation", "actor_gradient")
     if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
-        parser.error("--slices, --actor-distribution, --exploration, --actor-lr and "
-                     "--return-normalisation are the Dreamer's (--agent dreamer)")
+        parser.error("--slices, --actor-distribution, --exploration, --actor-lr, "
+                     "--return-normalisation and --actor-gradient are the Dreamer's "
+                     "(--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
     # a Dreamer actor option that is set names the run's folder and overrides its config
     # fields; unset, the preset's applies
@@ -106,7 +115,8 @@ def main(argv=None) -> None:
     for option, tag, fields in (("actor_distribution", "actor_", ["pixel_actor_distribution"]),
                                 ("exploration", "explore_", ["pixel_exploration"]),
                                 ("actor_lr", "lr", ["actor_lr", "critic_lr"]),
-                                ("return_normalisation", "return_", ["return_normalisation"])):
+                                ("return_normalisation", "return_", ["return_normalisation"]),
+                                ("actor_gradient", "grad_", ["pixel_actor_gradient"])):
         value = getattr(args, option)
         if value is not None:
             suffix += f"_{tag}{value:g}" if isinstance(value, float) else f"_{tag}{value}"
@@ -162,6 +172,7 @@ def main(argv=None) -> None:
                "actor_distribution": cfg.pixel_actor_distribution,
                "exploration": cfg.pixel_exploration, "actor_lr": cfg.actor_lr,
                "return_normalisation": cfg.return_normalisation,
+               "actor_gradient": cfg.pixel_actor_gradient,
                "batch": args.batch if args.agent == "sac" else None,
                "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],

@@ -81,7 +81,7 @@ def test_dreamer_v2_actor_explores_by_sampling_inside_the_box_and_learns():
 
 def test_dreamer_config_refuses_unknown_actor_forms():
     for field, value in (("actor_distribution", "beta"), ("exploration", "epsilon"),
-                         ("return_normalisation", "zscore")):
+                         ("return_normalisation", "zscore"), ("actor_gradient", "pathwise")):
         with pytest.raises(ValueError, match=f"unknown {field} '{value}'"):
             DreamerConfig(**{field: value})
 

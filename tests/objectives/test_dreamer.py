@@ -222,3 +222,122 @@ def test_actor_input_noise_reads_latents_with_the_stated_noise_and_zero_changes_
     with pytest.raises(ValueError, match="actor_input_noise must be >= 0"):
         DreamerActorCriticLoss(wm, Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2),
                                ScalarHead(wm.rssm.feature_dim, 16), actor_input_noise=-0.1)
+
+
+def _posterior_batch(wm, batch=8):
+    td = linear_system_batch(batch=batch, time=6, obs_dim=4)
+    DreamerWorldModelLoss(wm)(td)  # writes ("posterior", ...)
+    return td
+
+
+def _actor_grads(loss, td, seed=3):
+    torch.manual_seed(seed)
+    loss.actor.zero_grad()
+    out = loss(td)
+    out["loss_actor"].backward()
+    return out, [p.grad.clone() for p in loss.actor.parameters()]
+
+
+@pytest.mark.parametrize("distribution", ["tanh_normal", "trunc_normal"])
+def test_reinforce_takes_no_gradient_through_the_model_and_dynamics_does(distribution,
+                                                                         monkeypatch):
+    """Cutting the model's dependence on the action's gradient leaves the score-function
+    gradient unchanged and changes the backpropagated one; the model gets no gradient."""
+    wm = _teacher()
+    td = _posterior_batch(wm)
+    for gradient, unchanged in (("reinforce", True), ("dynamics", False)):
+        torch.manual_seed(1)
+        actor = Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2, distribution=distribution)
+        loss = DreamerActorCriticLoss(wm, actor, ScalarHead(wm.rssm.feature_dim, 16),
+                                      horizon=3, entropy_coeff=0.0, actor_gradient=gradient)
+        out, through = _actor_grads(loss, td)
+        assert torch.isfinite(out["loss_actor"])
+        assert all(p.grad is None for p in wm.parameters())
+        prior_step = wm.rssm.prior_step
+        monkeypatch.setattr(wm.rssm, "prior_step",
+                            lambda state, action: prior_step(state, action.detach()))
+        _, cut = _actor_grads(loss, td)
+        monkeypatch.undo()
+        same = all(torch.allclose(a, b) for a, b in zip(through, cut))
+        assert same is unchanged, gradient
+        assert any(g.abs().sum() > 0 for g in through)
+
+
+def test_reinforce_loss_is_the_score_function_of_the_advantage():
+    """Horizon 1 by hand: ``-(log pi(a|z0) * sg(r + gamma V'(z1) - V(z0))).mean()``."""
+    wm = _teacher()
+    td = _posterior_batch(wm, batch=4)
+    torch.manual_seed(1)
+    actor = Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2, distribution="trunc_normal")
+    critic = ScalarHead(wm.rssm.feature_dim, 16)
+    loss = DreamerActorCriticLoss(wm, actor, critic, horizon=1, gamma=0.9,
+                                  entropy_coeff=0.0, actor_gradient="reinforce")
+    seen = {}
+    head = wm.reward_head
+
+    class Spy(torch.nn.Module):  # records the imagined features the reward reads
+        def forward(self, features):
+            seen["z1"] = features.detach()
+            return head(features)
+
+    wm.reward_head = Spy()
+    torch.manual_seed(5)
+    out = loss(td)
+    wm.reward_head = head
+    z0 = torch.cat([td["posterior", "belief"], td["posterior", "stoch"]], -1).flatten(0, -2)
+    z1 = seen["z1"]                                       # [N, 1, F]
+    # the action the loss drew: replay its random stream
+    torch.manual_seed(5)
+    action = actor.distribution(z0).rsample()
+    ret = wm.reward(z1)[:, 0] + 0.9 * loss.target_critic(z1)[:, 0]
+    advantage = (ret - critic(z0)).detach()
+    log_prob = actor.distribution(z0).log_prob(action).reshape(advantage.shape)
+    expected = -(log_prob * advantage).mean()
+    torch.testing.assert_close(out["loss_actor"], expected)
+    torch.testing.assert_close(out["advantage"], advantage.abs().mean())
+
+
+def test_reinforce_finds_the_better_action_without_a_model_gradient(monkeypatch):
+    """A model whose imagined reward is ``-(a - 0.5)^2`` of the action taken, with no
+    gradient from reward to action: the score-function actor still moves its mode to 0.5."""
+    wm = _teacher()
+    td = _posterior_batch(wm)
+    rssm = wm.rssm
+
+    def prior_step(state, action):  # the belief carries the action, detached
+        belief = torch.zeros_like(state.belief)
+        belief[..., :2] = action.detach()
+        return belief, torch.zeros(*belief.shape[:-1], rssm.stoch, rssm.classes)
+
+    class Reward(torch.nn.Module):
+        def forward(self, features):
+            return -(features[..., :1] - 0.5).pow(2)
+
+    monkeypatch.setattr(rssm, "prior_step", prior_step)
+    wm.reward_head = Reward()
+    torch.manual_seed(0)
+    actor = Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2, distribution="trunc_normal")
+    critic = ScalarHead(wm.rssm.feature_dim, 16)
+    for p in critic.parameters():  # V = 0: the advantage is the reward itself
+        p.data.zero_()
+    loss = DreamerActorCriticLoss(wm, actor, critic, horizon=1, actor_gradient="reinforce")
+    starts = td["posterior", "belief"].flatten(0, -2), td["posterior", "stoch"].flatten(0, -2)
+
+    def mode():
+        return actor(torch.cat(starts, -1))[:, 0].mean().item()
+
+    before = mode()
+    optim = torch.optim.Adam(actor.parameters(), lr=3e-3)
+    for _ in range(300):
+        out = loss(td)
+        optim.zero_grad()
+        out["loss_actor"].backward()
+        optim.step()
+    assert abs(before - 0.5) > 0.2 and abs(mode() - 0.5) < 0.1, (before, mode())
+
+
+def test_unknown_actor_gradient_is_refused():
+    wm = _teacher()
+    with pytest.raises(ValueError, match="unknown actor_gradient 'pathwise'"):
+        DreamerActorCriticLoss(wm, Actor(wm.rssm.feature_dim, 2, hidden=16, layers=2),
+                               ScalarHead(wm.rssm.feature_dim, 16), actor_gradient="pathwise")

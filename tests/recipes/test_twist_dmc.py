@@ -536,17 +536,20 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
     proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40,
                       "--train-every", "10", "--actor-distribution", "trunc_normal",
                       "--exploration", "sample", "--actor-lr", "8e-05",
-                      "--return-normalisation", "percentile", "--out", out, capsys=capsys)
+                      "--return-normalisation", "percentile", "--actor-gradient", "reinforce",
+                      "--out", out, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     v2 = json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10_actor_trunc_normal"
-                           "_explore_sample_lr8e-05_return_percentile" / "result_40.json")
-                    .read_text())
+                           "_explore_sample_lr8e-05_return_percentile_grad_reinforce" /
+                     "result_40.json").read_text())
     assert (v2["actor_distribution"], v2["exploration"], v2["actor_lr"],
-            v2["return_normalisation"]) == ("trunc_normal", "sample", 8e-5, "percentile")
+            v2["return_normalisation"], v2["actor_gradient"]) == (
+        "trunc_normal", "sample", 8e-5, "percentile", "reinforce")
     assert first["actor_distribution"] == "tanh_normal" and first["exploration"] == "noise"
-    assert first["return_normalisation"] == "none"
+    assert first["return_normalisation"] == "none" and first["actor_gradient"] == "dynamics"
     for flag, value in (("--slices", "3"), ("--exploration", "sample"),
-                        ("--return-normalisation", "percentile")):
+                        ("--return-normalisation", "percentile"),
+                        ("--actor-gradient", "reinforce")):
         proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
                           flag, value, "--out", out, capsys=capsys)
         assert proc.returncode == 2 and "are the Dreamer's" in proc.stderr
@@ -988,7 +991,7 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
 
     recipe = _recipe_module()
     for field, bad in (("pixel_actor_distribution", "beta"), ("pixel_exploration", "greedy"),
-                       ("return_normalisation", "zscore")):
+                       ("return_normalisation", "zscore"), ("pixel_actor_gradient", "pathwise")):
         with pytest.raises(ConfigError, match=f"unknown {field.removeprefix('pixel_')}"):
             recipe.Config(**{field: bad})
     # return normalisation is the Dreamers' together: the teacher's and the pixel ones'
@@ -997,13 +1000,15 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
     assert both.pixel_dreamer().return_normalisation == "percentile"
     cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "output_dir": str(tmp_path),
                            "pixel_actor_distribution": "trunc_normal",
-                           "pixel_exploration": "sample"})
-    assert (cfg.dreamer().actor_distribution, cfg.dreamer().exploration) == (
-        "tanh_normal", "noise")
+                           "pixel_exploration": "sample",
+                           "pixel_actor_gradient": "reinforce"})
+    assert (cfg.dreamer().actor_distribution, cfg.dreamer().exploration,
+            cfg.dreamer().actor_gradient) == ("tanh_normal", "noise", "dynamics")
     result = recipe.pixel_dreamer_stage(cfg, "cartpole-balance", 0, None, tmp_path / "px")
     agent = load_agent(result["agent"])
-    assert (agent.config.actor_distribution, agent.config.exploration) == (
-        "trunc_normal", "sample")
+    assert (agent.config.actor_distribution, agent.config.exploration,
+            agent.config.actor_gradient) == ("trunc_normal", "sample", "reinforce")
+    assert agent.behaviour_loss.actor_gradient == "reinforce"
     assert agent.actor.kind == "trunc_normal"
 
 

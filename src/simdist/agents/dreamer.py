@@ -26,6 +26,7 @@ from simdist.agents.describe import build_dreamer_model, describe_dreamer_model
 from simdist.modules import Actor, DreamerWorldModel, ScalarHead
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss, ReturnScale
+from simdist.objectives.dreamer import ACTOR_GRADIENTS
 from simdist.utils.device import module_device, move_to_device
 
 
@@ -61,6 +62,10 @@ class DreamerConfig:
     # the actor's returns: "none", as they come (DreamerV2), or "percentile", divided by
     # their running 95th-5th percentile range when above 1 (DreamerV3; ReturnScale)
     return_normalisation: str = "none"
+    # how the actor's objective reaches it: "dynamics", backpropagated through the world
+    # model (DreamerV1/V2), or "reinforce", score function with the critic as baseline
+    # (DreamerV3; DreamerActorCriticLoss.actor_gradient)
+    actor_gradient: str = "dynamics"
 
     def __post_init__(self):
         if self.actor_distribution not in Actor.DISTRIBUTIONS:
@@ -73,6 +78,9 @@ class DreamerConfig:
             raise ValueError(f"DreamerConfig: unknown return_normalisation "
                              f"{self.return_normalisation!r}; "
                              f"valid: {list(RETURN_NORMALISATIONS)}")
+        if self.actor_gradient not in ACTOR_GRADIENTS:
+            raise ValueError(f"DreamerConfig: unknown actor_gradient {self.actor_gradient!r}; "
+                             f"valid: {list(ACTOR_GRADIENTS)}")
 
 
 EXPLORATIONS = ("noise", "sample")
@@ -176,7 +184,8 @@ class DreamerAgent(ckpt_format.LoadableAgent):
             world_model, self.actor, self.critic, horizon=config.horizon,
             entropy_coeff=config.entropy_coeff, max_starts=config.imagination_starts,
             actor_input_noise=config.actor_input_noise,
-            return_scale=ReturnScale() if config.return_normalisation == "percentile" else None)
+            return_scale=ReturnScale() if config.return_normalisation == "percentile" else None,
+            actor_gradient=config.actor_gradient)
         self.model_optim = torch.optim.Adam(world_model.parameters(), lr=config.model_lr)
         self.actor_optim = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
         self.critic_optim = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)

@@ -24,6 +24,9 @@ from simdist.modules.world_model import DreamerWorldModel
 from simdist.objectives.common import SimdistLoss, sequence_batch
 from simdist.objectives.return_scale import ReturnScale
 
+# how the actor's objective reaches its parameters (DreamerActorCriticLoss.actor_gradient)
+ACTOR_GRADIENTS = ("dynamics", "reinforce")
+
 
 def balanced_kl(rssm, post_logits, prior_logits, balance: float, free_nats: float):
     """DreamerV2 KL balancing with per-step free nats.
@@ -150,6 +153,14 @@ class DreamerActorCriticLoss(SimdistLoss):
         return_scale: a :class:`ReturnScale` that the actor's returns are divided by
             (DreamerV3's return normalisation; ``None``: unscaled, DreamerV2). The critic
             still regresses the unscaled returns.
+        actor_gradient: ``"dynamics"``, the returns' gradient backpropagated through the
+            world model into the actions (DreamerV1/V2 on continuous control), or
+            ``"reinforce"``, the score-function gradient ``log pi(a|z) * sg(R - V(z))``
+            with the critic as baseline and the imagination run without gradient
+            (DreamerV3's estimator): the actor cannot follow a wrong model's gradient
+            into actions the model mispredicts, it learns only from which of its own
+            samples the model scores higher. The entropy bonus is reparameterised in
+            both cases.
 
     Examples:
         >>> from simdist.modules import Actor, ScalarHead
@@ -181,8 +192,12 @@ class DreamerActorCriticLoss(SimdistLoss):
                  gamma: float = 0.99, lmbda: float = 0.95, entropy_coeff: float = 3e-4,
                  target_tau: float = 0.02, max_starts: int | None = None,
                  actor_input_noise: float = 0.0, return_scale: ReturnScale | None = None,
-                 check_inputs: bool = True):
+                 actor_gradient: str = "dynamics", check_inputs: bool = True):
         super().__init__(check_inputs)
+        if actor_gradient not in ACTOR_GRADIENTS:
+            raise ValueError(f"unknown actor_gradient {actor_gradient!r}; "
+                             f"valid: {list(ACTOR_GRADIENTS)}")
+        self.actor_gradient = actor_gradient
         self.return_scale = return_scale
         if not actor_input_noise >= 0:
             raise ValueError(f"actor_input_noise must be >= 0, got {actor_input_noise}")
@@ -213,16 +228,21 @@ class DreamerActorCriticLoss(SimdistLoss):
             index = torch.randperm(state.belief.shape[0], device=belief.device)[:self.max_starts]
             state = RSSMState(state.belief[index], state.stoch[index])
         rssm = self.world_model.rssm
-        features, log_probs = [state.features()], []
+        reinforce = self.actor_gradient == "reinforce"
+        features, reads, actions, log_probs = [state.features()], [], [], []
         # per-feature scale of the reading noise, from the starts (no gradient)
         noise_scale = self.actor_input_noise * features[0].std(0, keepdim=True) \
             if self.actor_input_noise and features[0].shape[0] > 1 else None
-        with hold_out_net(self.world_model):
+        # REINFORCE needs no gradient through the imagination: the rollout is data
+        with hold_out_net(self.world_model), torch.set_grad_enabled(
+                torch.is_grad_enabled() and not reinforce):
             for _ in range(self.horizon):
                 read = features[-1] if noise_scale is None else \
                     features[-1] + noise_scale * torch.randn_like(features[-1])
                 dist = self.actor.distribution(read)
                 action = dist.rsample()
+                reads.append(read)
+                actions.append(action)
                 log_probs.append(dist.log_prob(action))
                 belief_, logits = rssm.prior_step(state, action)
                 state = RSSMState(belief_, rssm.sample(logits))
@@ -232,16 +252,28 @@ class DreamerActorCriticLoss(SimdistLoss):
             next_value = self.target_critic(feats[:, 1:])           # [N, H, 1]
         done = torch.zeros_like(reward, dtype=torch.bool)
         returns = td_lambda_return_estimate(self.gamma, self.lmbda, next_value, reward, done)
-        entropy = -torch.stack(log_probs, 1).mean()
         diag = {}
-        if self.return_scale is None:
-            loss_actor = -returns.mean() - self.entropy_coeff * entropy
-        else:
-            # a constant divisor: the gradient of the returns shrinks, the entropy's does not
-            scale = self.return_scale.update(returns)
-            loss_actor = -(returns / scale).mean() - self.entropy_coeff * entropy
+        scale = None
+        if self.return_scale is not None:
+            scale = self.return_scale.update(returns.detach())
             diag["return_scale"] = scale.clone()
         value = self.critic(feats[:, :-1].detach())
+        if reinforce:
+            # the actor re-reads the (detached) rollout: score function of the actions
+            # it took, and a reparameterised sample for the entropy
+            dist = self.actor.distribution(torch.stack(reads, 1))
+            log_prob = dist.log_prob(torch.stack(actions, 1)).reshape(returns.shape)
+            entropy = -dist.log_prob(dist.rsample()).mean()
+            advantage = (returns - value).detach()
+            if scale is not None:
+                advantage = advantage / scale
+            loss_actor = -(log_prob * advantage).mean() - self.entropy_coeff * entropy
+            diag["advantage"] = advantage.abs().mean()
+        else:
+            entropy = -torch.stack(log_probs, 1).mean()
+            objective = returns if scale is None else returns / scale
+            # a constant divisor: the gradient of the returns shrinks, the entropy's does not
+            loss_actor = -objective.mean() - self.entropy_coeff * entropy
         loss_critic = 0.5 * (value - returns.detach()).pow(2).mean()
         return self.finish(TensorDict({
             "loss_actor": loss_actor, "loss_critic": loss_critic,

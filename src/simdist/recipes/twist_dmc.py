@@ -237,6 +237,10 @@ class Config:
     # how the pixel Dreamers explore (DreamerConfig.exploration): "noise", the actor's
     # mode plus noise (the teacher's), or "sample", draws from the actor (DreamerV2)
     pixel_exploration: str = "noise"
+    # how the pixel Dreamers' actor learns (DreamerConfig.actor_gradient): "dynamics",
+    # the returns backpropagated through the world model (the teacher's), or "reinforce",
+    # score function with the critic as baseline (DreamerV3)
+    pixel_actor_gradient: str = "dynamics"
     # the Dreamers' actor returns (teacher and pixel Dreamers; DreamerConfig.
     # return_normalisation): "none" (DreamerV2) or "percentile", divided by their running
     # 95th-5th percentile range (DreamerV3), so the entropy bonus is not swamped
@@ -340,7 +344,8 @@ class Config:
               f"snapshots, got {self.teacher_snapshots} (lower --teacher-snapshots with "
               f"--env-steps)")
         check_builds("dreamer", self.dreamer)
-        check_builds("pixel_actor_distribution / pixel_exploration", self.pixel_dreamer)
+        check_builds("pixel_actor_distribution / pixel_exploration / pixel_actor_gradient",
+                     self.pixel_dreamer)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
 
@@ -367,7 +372,8 @@ class Config:
         """The pixel Dreamers' config: the teacher's, with their own actor form."""
         return dataclasses.replace(self.dreamer(),
                                    actor_distribution=self.pixel_actor_distribution,
-                                   exploration=self.pixel_exploration)
+                                   exploration=self.pixel_exploration,
+                                   actor_gradient=self.pixel_actor_gradient)
 
 
 PRESETS = {
