@@ -8,6 +8,12 @@ on standardised features; a linear probe, so a lower bound on what the latent ca
 prints the R^2 on the other half. The same agent with its weights re-drawn (``untrained``) is the
 floor: what an untrained recurrent filter of these images carries by chance.
 
+It also asks whether the model knows what an action does (``action_response``): from the
+task's initial states, ``--horizon`` steps of a constant action of -1, 0 or +1 earn a
+summed reward in the simulator and, from the posterior of the same first image, in the
+Dreamer's imagination; an actor learns only from the second, so a model whose imagined
+rewards do not fall where the true ones do gives it nothing to learn from.
+
 ``--agent`` is a saved agent (``dreamer_agent.pt``, self-describing) or, with
 ``--training``, the checkpoint an online run keeps beside its episodes (``agent.pt``: the
 weights only, rebuilt as the recipe's pixel Dreamer of ``--preset`` with the given actor
@@ -31,6 +37,7 @@ import torch
 from simdist.agents import DreamerAgent
 from simdist.agents.checkpoint import load_agent
 from simdist.envs import VisualRandomisation
+from simdist.modules.rssm import RSSMState
 from simdist.pipelines.control import control_env
 from simdist.recipes import twist_dmc as recipe
 from simdist.utils import load_checkpoint
@@ -93,6 +100,47 @@ def probe(agent: DreamerAgent, episodes: list) -> list[float]:
                     torch.cat(feats[half:]), torch.cat(states[half:]))
 
 
+def action_response(agent: DreamerAgent, task: str, seed: int, episodes: int, horizon: int,
+                    camera_id, dr: bool, actions=(-1.0, 0.0, 1.0)) -> dict:
+    """What ``horizon`` steps of one constant action earn, in the simulator and imagined.
+
+    From the task's own initial states (seeds ``seed .. seed + episodes - 1``), each
+    constant action is held for ``horizon`` steps in the env (summed reward: the truth)
+    and, from the posterior of the same first image, in the Dreamer's imagination (summed
+    predicted reward): how much of the action's consequence the model has learnt, the
+    only thing its actor learns from. Returns ``{action: {"true": ..., "imagined": ...}}``
+    (means over the episodes).
+    """
+    wm = agent.world_model
+    env = control_env(task, seed, pixels=True, max_episode_steps=horizon, camera_id=camera_id,
+                      visual=VisualRandomisation.training() if dr else None)
+    out = {}
+    for value in actions:
+        true, imagined = [], []
+        for i in range(episodes):
+            env.set_seed(seed + i)
+            held = torch.full(env.action_spec.shape, value, dtype=env.action_spec.dtype)
+            td = env.rollout(horizon, actions=[held] * horizon, break_when_any_done=False)
+            true.append(float(td["next", "reward"].sum()))
+            with torch.no_grad():
+                first = td["pixels"][None, :1]
+                post = wm.rssm.observe(wm.encoder(first),
+                                       torch.zeros(1, 1, *env.action_spec.shape),
+                                       torch.ones(1, 1, dtype=torch.bool))
+                state = RSSMState(post["belief"][:, 0], post["stoch"][:, 0])
+                total = 0.0
+                for _ in range(horizon):
+                    belief, logits = wm.rssm.prior_step(
+                        state, torch.full((1, *env.action_spec.shape), value))
+                    state = RSSMState(belief, wm.rssm.sample(logits))
+                    total += float(wm.reward(state.features()).sum())
+            imagined.append(total)
+        out[f"{value:+g}"] = {"true": round(sum(true) / episodes, 3),
+                              "imagined": round(sum(imagined) / episodes, 3)}
+    env.close()
+    return out
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--agent", required=True, help="a saved pixel DreamerAgent (.pt)")
@@ -109,11 +157,14 @@ def main(argv=None) -> None:
     parser.add_argument("--actor-distribution", default="tanh_normal",
                         choices=["tanh_normal", "trunc_normal"],
                         help="--training: the run's actor form")
+    parser.add_argument("--horizon", type=int, default=15,
+                        help="steps of each constant action in the action-response check "
+                             "(the Dreamer's imagination horizon)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", help="also write the result here")
     args = parser.parse_args(argv)
-    if args.episodes < 2 or args.steps < 2:
-        parser.error("need --episodes >= 2 and --steps >= 2")
+    if args.episodes < 2 or args.steps < 2 or args.horizon < 1:
+        parser.error("need --episodes >= 2, --steps >= 2 and --horizon >= 1")
     torch.set_num_threads(args.threads)
     if args.training:
         cfg = recipe.Config(**{**recipe.PRESETS[args.preset],
@@ -131,7 +182,10 @@ def main(argv=None) -> None:
               "steps": args.steps, "dr": args.dr, "camera_id": args.camera_id,
               "state_std": [round(float(v), 3)
                             for v in torch.cat([e["state"] for e in episodes]).std(0)],
-              "r2_trained": probe(agent, episodes), "r2_untrained": probe(untrained, episodes)}
+              "r2_trained": probe(agent, episodes), "r2_untrained": probe(untrained, episodes),
+              "horizon": args.horizon,
+              "action_response": action_response(agent, args.task, args.seed, args.episodes,
+                                                 args.horizon, args.camera_id, args.dr)}
     print(json.dumps(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))

@@ -1028,11 +1028,18 @@ def test_dreamer_latent_probe_reads_saved_and_training_checkpoints(tmp_path, cap
                                       tmp_path / "agent.pt")):
         out = tmp_path / "probe.json"
         proc = _benchmark("dreamer_latent_probe", *args, "--episodes", 2, "--steps", 6,
-                          "--json", out, capsys=capsys)
+                          "--horizon", 4, "--json", out, capsys=capsys)
         assert proc.returncode == 0, proc.stderr
         result = json.loads(out.read_text())
         assert len(result["r2_trained"]) == len(result["r2_untrained"]) == 5
         assert all(r <= 1 for r in result["r2_trained"] + result["r2_untrained"])
+        # the simulator's side of the action response: cartpole pays up to 2 per agent
+        # step (two control steps), and holding a full push costs its control term
+        response = result["action_response"]
+        assert set(response) == {"-1", "+0", "+1"}
+        assert all(0 < r["true"] <= 2 * 4 for r in response.values())
+        assert response["+0"]["true"] > max(response["-1"]["true"], response["+1"]["true"])
+        assert all(isinstance(r["imagined"], float) for r in response.values())
     state = DreamerAgent.for_state(5, 1, cfg.dreamer()).save(tmp_path / "state.pt")
     proc = _benchmark("dreamer_latent_probe", "--agent", state, capsys=capsys)
     assert proc.returncode == 2 and "is not a pixel Dreamer agent" in proc.stderr
