@@ -25,6 +25,8 @@ Usage:
         --return-normalisation percentile                           # DreamerV3's returns
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
         --actor-gradient reinforce                                  # DreamerV3's estimator
+    python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
+        --reward-scale 100                     # the reward weighs more in the world model
     python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
     python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
@@ -85,6 +87,9 @@ def main(argv=None) -> None:
                              "model (dynamics) or the score function with the critic as "
                              "baseline (reinforce, DreamerV3's) (default: the preset's "
                              "pixel_actor_gradient)")
+    parser.add_argument("--reward-scale", type=float,
+                        help="Dreamer: weight of the reward term in the world model's loss "
+                             "(default: the preset's pixel_reward_scale, 1)")
     parser.add_argument("--actor-lr", type=float,
                         help="Dreamer: actor and critic learning rate (default: the preset's)")
     parser.add_argument("--camera-id", type=int,
@@ -103,11 +108,11 @@ def main(argv=None) -> None:
     if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
     dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr",
-                       "return_normalisation", "actor_gradient")
+                       "return_normalisation", "actor_gradient", "reward_scale")
     if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
         parser.error("--slices, --actor-distribution, --exploration, --actor-lr, "
-                     "--return-normalisation and --actor-gradient are the Dreamer's "
-                     "(--agent dreamer)")
+                     "--return-normalisation, --actor-gradient and --reward-scale are the "
+                     "Dreamer's (--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
     # a Dreamer actor option that is set names the run's folder and overrides its config
     # fields; unset, the preset's applies
@@ -116,7 +121,8 @@ def main(argv=None) -> None:
                                 ("exploration", "explore_", ["pixel_exploration"]),
                                 ("actor_lr", "lr", ["actor_lr", "critic_lr"]),
                                 ("return_normalisation", "return_", ["return_normalisation"]),
-                                ("actor_gradient", "grad_", ["pixel_actor_gradient"])):
+                                ("actor_gradient", "grad_", ["pixel_actor_gradient"]),
+                                ("reward_scale", "reward", ["pixel_reward_scale"])):
         value = getattr(args, option)
         if value is not None:
             suffix += f"_{tag}{value:g}" if isinstance(value, float) else f"_{tag}{value}"
@@ -173,6 +179,7 @@ def main(argv=None) -> None:
                "exploration": cfg.pixel_exploration, "actor_lr": cfg.actor_lr,
                "return_normalisation": cfg.return_normalisation,
                "actor_gradient": cfg.pixel_actor_gradient,
+               "reward_scale": cfg.pixel_reward_scale,
                "batch": args.batch if args.agent == "sac" else None,
                "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],

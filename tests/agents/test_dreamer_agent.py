@@ -79,6 +79,23 @@ def test_dreamer_v2_actor_explores_by_sampling_inside_the_box_and_learns():
     assert all(torch.isfinite(torch.tensor(v)) for v in terms.values())
 
 
+def test_reward_scale_weighs_the_world_models_reward_term():
+    td = linear_system_batch(batch=2, time=5, obs_dim=4)
+    losses = {}
+    for scale in (1.0, 10.0):
+        torch.manual_seed(0)
+        agent = DreamerAgent.for_state(4, 2, DreamerConfig(size="tiny", reward_scale=scale))
+        assert agent.model_loss.reward_scale == scale
+        torch.manual_seed(1)
+        losses[scale] = agent.model_loss(td.clone())
+    torch.testing.assert_close(losses[10.0]["loss_reward"], 10 * losses[1.0]["loss_reward"])
+    torch.testing.assert_close(losses[10.0]["loss_reconstruction"],
+                               losses[1.0]["loss_reconstruction"])
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="reward_scale must be > 0"):
+            DreamerConfig(reward_scale=bad)
+
+
 def test_dreamer_config_refuses_unknown_actor_forms():
     for field, value in (("actor_distribution", "beta"), ("exploration", "epsilon"),
                          ("return_normalisation", "zscore"), ("actor_gradient", "pathwise")):

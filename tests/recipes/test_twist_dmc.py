@@ -537,19 +537,20 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
                       "--train-every", "10", "--actor-distribution", "trunc_normal",
                       "--exploration", "sample", "--actor-lr", "8e-05",
                       "--return-normalisation", "percentile", "--actor-gradient", "reinforce",
-                      "--out", out, capsys=capsys)
+                      "--reward-scale", "100", "--out", out, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     v2 = json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10_actor_trunc_normal"
-                           "_explore_sample_lr8e-05_return_percentile_grad_reinforce" /
+                           "_explore_sample_lr8e-05_return_percentile_grad_reinforce_reward100" /
                      "result_40.json").read_text())
     assert (v2["actor_distribution"], v2["exploration"], v2["actor_lr"],
-            v2["return_normalisation"], v2["actor_gradient"]) == (
-        "trunc_normal", "sample", 8e-5, "percentile", "reinforce")
+            v2["return_normalisation"], v2["actor_gradient"], v2["reward_scale"]) == (
+        "trunc_normal", "sample", 8e-5, "percentile", "reinforce", 100.0)
     assert first["actor_distribution"] == "tanh_normal" and first["exploration"] == "noise"
     assert first["return_normalisation"] == "none" and first["actor_gradient"] == "dynamics"
+    assert first["reward_scale"] == 1.0
     for flag, value in (("--slices", "3"), ("--exploration", "sample"),
                         ("--return-normalisation", "percentile"),
-                        ("--actor-gradient", "reinforce")):
+                        ("--actor-gradient", "reinforce"), ("--reward-scale", "10")):
         proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
                           flag, value, "--out", out, capsys=capsys)
         assert proc.returncode == 2 and "are the Dreamer's" in proc.stderr
@@ -994,6 +995,8 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
                        ("return_normalisation", "zscore"), ("pixel_actor_gradient", "pathwise")):
         with pytest.raises(ConfigError, match=f"unknown {field.removeprefix('pixel_')}"):
             recipe.Config(**{field: bad})
+    with pytest.raises(ConfigError, match="reward_scale must be > 0"):
+        recipe.Config(pixel_reward_scale=0.0)
     # return normalisation is the Dreamers' together: the teacher's and the pixel ones'
     both = recipe.Config(return_normalisation="percentile")
     assert both.dreamer().return_normalisation == "percentile"
@@ -1001,14 +1004,17 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
     cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "output_dir": str(tmp_path),
                            "pixel_actor_distribution": "trunc_normal",
                            "pixel_exploration": "sample",
-                           "pixel_actor_gradient": "reinforce"})
+                           "pixel_actor_gradient": "reinforce", "pixel_reward_scale": 10.0})
     assert (cfg.dreamer().actor_distribution, cfg.dreamer().exploration,
-            cfg.dreamer().actor_gradient) == ("tanh_normal", "noise", "dynamics")
+            cfg.dreamer().actor_gradient, cfg.dreamer().reward_scale) == (
+        "tanh_normal", "noise", "dynamics", 1.0)
+    assert cfg.pixel_dreamer().reward_scale == 10.0
     result = recipe.pixel_dreamer_stage(cfg, "cartpole-balance", 0, None, tmp_path / "px")
     agent = load_agent(result["agent"])
     assert (agent.config.actor_distribution, agent.config.exploration,
             agent.config.actor_gradient) == ("trunc_normal", "sample", "reinforce")
     assert agent.behaviour_loss.actor_gradient == "reinforce"
+    assert agent.config.reward_scale == agent.model_loss.reward_scale == 10.0
     assert agent.actor.kind == "trunc_normal"
 
 

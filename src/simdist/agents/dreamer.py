@@ -66,6 +66,10 @@ class DreamerConfig:
     # model (DreamerV1/V2), or "reinforce", score function with the critic as baseline
     # (DreamerV3; DreamerActorCriticLoss.actor_gradient)
     actor_gradient: str = "dynamics"
+    # weight of the reward term in the world model's loss (DreamerWorldModelLoss.
+    # reward_scale; 1: DreamerV2). The image term sums over 64x64x3 values, so at 1 the
+    # reward is a small share of what shapes the latent
+    reward_scale: float = 1.0
 
     def __post_init__(self):
         if self.actor_distribution not in Actor.DISTRIBUTIONS:
@@ -78,6 +82,8 @@ class DreamerConfig:
             raise ValueError(f"DreamerConfig: unknown return_normalisation "
                              f"{self.return_normalisation!r}; "
                              f"valid: {list(RETURN_NORMALISATIONS)}")
+        if not self.reward_scale > 0:
+            raise ValueError(f"DreamerConfig: reward_scale must be > 0, got {self.reward_scale}")
         if self.actor_gradient not in ACTOR_GRADIENTS:
             raise ValueError(f"DreamerConfig: unknown actor_gradient {self.actor_gradient!r}; "
                              f"valid: {list(ACTOR_GRADIENTS)}")
@@ -175,7 +181,7 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         self.actor = Actor(feature_dim, action_dim, hidden=hidden, layers=3,
                            distribution=config.actor_distribution)
         self.critic = ScalarHead(feature_dim, hidden)
-        self.model_loss = DreamerWorldModelLoss(world_model)
+        self.model_loss = DreamerWorldModelLoss(world_model, reward_scale=config.reward_scale)
         self.model_loss.set_keys(observation=("next", obs_key))
         self.reconstruct_key = reconstruct_key  # None: the decoder reconstructs obs_key
         if reconstruct_key is not None:

@@ -241,6 +241,9 @@ class Config:
     # the returns backpropagated through the world model (the teacher's), or "reinforce",
     # score function with the critic as baseline (DreamerV3)
     pixel_actor_gradient: str = "dynamics"
+    # the pixel Dreamers' reward weight in their world-model loss (DreamerConfig.
+    # reward_scale; the teacher's is 1)
+    pixel_reward_scale: float = 1.0
     # the Dreamers' actor returns (teacher and pixel Dreamers; DreamerConfig.
     # return_normalisation): "none" (DreamerV2) or "percentile", divided by their running
     # 95th-5th percentile range (DreamerV3), so the entropy bonus is not swamped
@@ -344,8 +347,8 @@ class Config:
               f"snapshots, got {self.teacher_snapshots} (lower --teacher-snapshots with "
               f"--env-steps)")
         check_builds("dreamer", self.dreamer)
-        check_builds("pixel_actor_distribution / pixel_exploration / pixel_actor_gradient",
-                     self.pixel_dreamer)
+        check_builds("pixel_actor_distribution / pixel_exploration / pixel_actor_gradient / "
+                     "pixel_reward_scale", self.pixel_dreamer)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
 
@@ -373,7 +376,8 @@ class Config:
         return dataclasses.replace(self.dreamer(),
                                    actor_distribution=self.pixel_actor_distribution,
                                    exploration=self.pixel_exploration,
-                                   actor_gradient=self.pixel_actor_gradient)
+                                   actor_gradient=self.pixel_actor_gradient,
+                                   reward_scale=self.pixel_reward_scale)
 
 
 PRESETS = {
