@@ -127,14 +127,9 @@ def action_response(agent: DreamerAgent, task: str, seed: int, episodes: int, ho
                 post = wm.rssm.observe(wm.encoder(first),
                                        torch.zeros(1, 1, *env.action_spec.shape),
                                        torch.ones(1, 1, dtype=torch.bool))
-                state = RSSMState(post["belief"][:, 0], post["stoch"][:, 0])
-                total = 0.0
-                for _ in range(horizon):
-                    belief, logits = wm.rssm.prior_step(
-                        state, torch.full((1, *env.action_spec.shape), value))
-                    state = RSSMState(belief, wm.rssm.sample(logits))
-                    total += float(wm.reward(state.features()).sum())
-            imagined.append(total)
+                dream = wm.imagine(RSSMState(post["belief"][:, 0], post["stoch"][:, 0]),
+                                   held.expand(1, horizon, *held.shape))
+                imagined.append(float(wm.reward(wm.features(dream)).sum()))
         out[f"{value:+g}"] = {"true": round(sum(true) / episodes, 3),
                               "imagined": round(sum(imagined) / episodes, 3)}
     env.close()

@@ -241,9 +241,11 @@ class DreamerActorCriticLoss(SimdistLoss):
                     features[-1] + noise_scale * torch.randn_like(features[-1])
                 dist = self.actor.distribution(read)
                 action = dist.rsample()
-                reads.append(read)
-                actions.append(action)
-                log_probs.append(dist.log_prob(action))
+                if reinforce:  # re-read with gradient after the rollout
+                    reads.append(read)
+                    actions.append(action)
+                else:
+                    log_probs.append(dist.log_prob(action))
                 belief_, logits = rssm.prior_step(state, action)
                 state = RSSMState(belief_, rssm.sample(logits))
                 features.append(state.features())
