@@ -1,5 +1,6 @@
 """Every tutorial notebook runs top to bottom in its small mode."""
 
+import os
 from pathlib import Path
 
 import nbformat
@@ -15,7 +16,10 @@ def test_notebook_executes(path, tmp_path):
     assert all(not cell.get("outputs") for cell in nb.cells if cell.cell_type == "code"), \
         "notebooks are stored without outputs"
     NotebookClient(nb, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(tmp_path)}}).execute()
+                   resources={"metadata": {"path": str(tmp_path)}}).execute(
+        # one intra-op thread, like the test process beside it: two threads on a core another
+        # job also uses made a 30 s notebook take over 600 s (pytest-timeout)
+        env={**os.environ, "OMP_NUM_THREADS": "1"})
 
 
 def test_notebooks_match_their_source():
