@@ -17,13 +17,22 @@ rewards do not fall where the true ones do gives it nothing to learn from.
 ``--agent`` is a saved agent (``dreamer_agent.pt``, self-describing) or, with
 ``--training``, the checkpoint an online run keeps beside its episodes (``agent.pt``: the
 weights only, rebuilt as the recipe's pixel Dreamer of ``--preset`` with the given actor
-form), so a run stopped before its end can be probed.
+form and ``--encoder``), so a run stopped before its end can be probed.
+
+With ``--fit-random N`` there is no agent to read: the recipe's pixel Dreamer of
+``--preset`` (with ``--encoder``) is built fresh and only its world model trains, on
+``N`` episodes of uniform random actions (the preset's episode length, slices and batch),
+and the probe and action response are measured after each of ``--updates``: how many
+updates the world model needs before its latent reads the state and its imagination
+prices actions, with no actor drifting the data.
 
 Usage:
     python benchmarks/dreamer_latent_probe.py --agent RUN/.../dreamer_agent.pt
     python benchmarks/dreamer_latent_probe.py --training --agent STAGE/agent.pt \
         --actor-distribution trunc_normal
     python benchmarks/dreamer_latent_probe.py --agent A.pt --episodes 32 --steps 250 --json out.json
+    python benchmarks/dreamer_latent_probe.py --fit-random 10 --updates 250 500 1000 \
+        --encoder keypoints --json fit.json       # the world model alone, on random data
 """
 
 from __future__ import annotations
@@ -33,12 +42,16 @@ import json
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
 from simdist.agents import DreamerAgent
 from simdist.agents.checkpoint import load_agent
 from simdist.envs import VisualRandomisation
+from simdist.modules.encoders import PixelEncoder
 from simdist.modules.rssm import RSSMState
-from simdist.pipelines.control import control_env
+from simdist.pipelines.control import EpisodeReplay, control_env, dreamer_keys
+from simdist.pipelines.locomotion import rollout
+from simdist.pipelines.resumable import stage_seed
 from simdist.recipes import twist_dmc as recipe
 from simdist.utils import load_checkpoint
 
@@ -136,9 +149,39 @@ def action_response(agent: DreamerAgent, task: str, seed: int, episodes: int, ho
     return out
 
 
+def fit_random(cfg, task: str, seed: int, episodes: int, updates: list[int], report) -> None:
+    """Trains a fresh pixel Dreamer's world model alone on ``episodes`` random-action
+    episodes and calls ``report(agent, n, losses)`` after each of ``updates`` updates."""
+    agent = DreamerAgent.for_pixels(recipe.state_dim(task)[1], cfg.pixel_dreamer())
+    env = control_env(task, seed, pixels=True, max_episode_steps=cfg.episode_steps,
+                      camera_id=cfg.camera_id)
+    replay = EpisodeReplay(episodes * cfg.episode_steps, cfg.slice_len, cfg.slices)
+    for i in tqdm(range(episodes), desc="random episodes"):
+        env.set_seed(stage_seed(seed, f"fit_random/{i}"))
+        with torch.no_grad():
+            episode = rollout(env, None, cfg.episode_steps)
+        replay.add(episode.select(*dreamer_keys("pixels")).to_tensordict())
+    env.close()
+    params = list(agent.world_model.parameters())
+    for n in tqdm(range(1, max(updates) + 1), desc="world-model updates"):
+        out = agent.model_loss(replay.sample())
+        agent._step(sum(v for k, v in out.items() if k.startswith("loss_")),
+                    agent.model_optim, params)
+        if n in updates:
+            report(agent, n, {k: round(v.item(), 4) for k, v in out.items()})
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--agent", required=True, help="a saved pixel DreamerAgent (.pt)")
+    parser.add_argument("--agent", help="a saved pixel DreamerAgent (.pt)")
+    parser.add_argument("--fit-random", type=int, metavar="N",
+                        help="no --agent: train a fresh pixel Dreamer's world model alone on N "
+                             "random-action episodes and probe it after each of --updates")
+    parser.add_argument("--updates", type=int, nargs="+", default=[250, 500, 1000],
+                        help="--fit-random: world-model updates at which to probe")
+    parser.add_argument("--encoder", choices=list(PixelEncoder.ARCHS),
+                        help="--training / --fit-random: the Dreamer's image encoder "
+                             "(default: the preset's)")
     parser.add_argument("--task", default="cartpole-balance")
     parser.add_argument("--seed", type=int, default=123)
     parser.add_argument("--episodes", type=int, default=16, help="half fit, half test")
@@ -160,30 +203,57 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     if args.episodes < 2 or args.steps < 2 or args.horizon < 1:
         parser.error("need --episodes >= 2, --steps >= 2 and --horizon >= 1")
+    if (args.agent is None) == (args.fit_random is None):
+        parser.error("give one of --agent and --fit-random")
+    if args.fit_random is not None and (args.fit_random < 1 or min(args.updates) < 1
+                                        or args.training or args.dr):
+        parser.error("--fit-random needs N >= 1 and --updates >= 1, and trains on dm_control's "
+                     "own scene from scratch (no --training, no --dr)")
     torch.set_num_threads(args.threads)
+    cfg = recipe.Config(**{**recipe.PRESETS[args.preset], "camera_id": args.camera_id,
+                           "pixel_actor_distribution": args.actor_distribution,
+                           **({} if args.encoder is None else {"pixel_encoder": args.encoder})})
+    torch.manual_seed(args.seed)
+    episodes = collect(args.task, args.seed, args.episodes, args.steps, args.camera_id, args.dr)
+    result = {"agent": args.agent and str(args.agent), "task": args.task,
+              "episodes": args.episodes, "steps": args.steps, "dr": args.dr,
+              "camera_id": args.camera_id,
+              "state_std": [round(float(v), 3)
+                            for v in torch.cat([e["state"] for e in episodes]).std(0)],
+              "horizon": args.horizon}
+
+    def measure(agent) -> dict:
+        return {"r2_trained": probe(agent, episodes),
+                "action_response": action_response(agent, args.task, args.seed, args.episodes,
+                                                   args.horizon, args.camera_id, args.dr)}
+
+    def write() -> None:
+        print(json.dumps(result))
+        if args.json:
+            Path(args.json).write_text(json.dumps(result, indent=1))
+
+    if args.fit_random is not None:
+        result.update(fit_random=args.fit_random, encoder=cfg.pixel_encoder, fits=[])
+        result["r2_untrained"] = probe(
+            DreamerAgent.for_pixels(recipe.state_dim(args.task)[1], cfg.pixel_dreamer()),
+            episodes)
+
+        def report(agent, updates, losses):
+            result["fits"].append({"updates": updates, "losses": losses, **measure(agent)})
+            write()
+
+        fit_random(cfg, args.task, args.seed, args.fit_random, sorted(set(args.updates)), report)
+        return
     if args.training:
-        cfg = recipe.Config(**{**recipe.PRESETS[args.preset],
-                               "pixel_actor_distribution": args.actor_distribution})
         agent = DreamerAgent.for_pixels(recipe.state_dim(args.task)[1], cfg.pixel_dreamer())
         agent.load_state_dict(load_checkpoint(args.agent)["agent"])
     else:
         agent = load_agent(args.agent)
     if not isinstance(agent, DreamerAgent) or agent.obs_key != "pixels":
         parser.error(f"{args.agent} is not a pixel Dreamer agent")
-    torch.manual_seed(args.seed)
-    episodes = collect(args.task, args.seed, args.episodes, args.steps, args.camera_id, args.dr)
-    untrained = DreamerAgent.from_config(agent.describe())
-    result = {"agent": str(args.agent), "task": args.task, "episodes": args.episodes,
-              "steps": args.steps, "dr": args.dr, "camera_id": args.camera_id,
-              "state_std": [round(float(v), 3)
-                            for v in torch.cat([e["state"] for e in episodes]).std(0)],
-              "r2_trained": probe(agent, episodes), "r2_untrained": probe(untrained, episodes),
-              "horizon": args.horizon,
-              "action_response": action_response(agent, args.task, args.seed, args.episodes,
-                                                 args.horizon, args.camera_id, args.dr)}
-    print(json.dumps(result))
-    if args.json:
-        Path(args.json).write_text(json.dumps(result, indent=1))
+    result.update(measure(agent))
+    result["r2_untrained"] = probe(DreamerAgent.from_config(agent.describe()), episodes)
+    write()
 
 
 if __name__ == "__main__":

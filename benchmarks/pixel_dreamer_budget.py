@@ -27,6 +27,8 @@ Usage:
         --actor-gradient reinforce                                  # DreamerV3's estimator
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
         --reward-scale 100                     # the reward weighs more in the world model
+    python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
+        --encoder keypoints                    # spatial-softmax keypoints read the image
     python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
     python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
@@ -45,6 +47,7 @@ from simdist.agents.checkpoint import load_agent
 from simdist.agents.dreamer import RETURN_NORMALISATIONS
 from simdist.objectives.dreamer import ACTOR_GRADIENTS
 from simdist.envs import VisualRandomisation
+from simdist.modules.encoders import PixelEncoder
 from simdist.pipelines import evaluate_returns
 from simdist.recipes import twist_dmc as recipe
 
@@ -90,6 +93,9 @@ def main(argv=None) -> None:
     parser.add_argument("--reward-scale", type=float,
                         help="Dreamer: weight of the reward term in the world model's loss "
                              "(default: the preset's pixel_reward_scale, 1)")
+    parser.add_argument("--encoder", choices=list(PixelEncoder.ARCHS),
+                        help="how the Dreamer reads its image (default: the preset's "
+                             "pixel_encoder, the CNN)")
     parser.add_argument("--actor-lr", type=float,
                         help="Dreamer: actor and critic learning rate (default: the preset's)")
     parser.add_argument("--camera-id", type=int,
@@ -108,10 +114,11 @@ def main(argv=None) -> None:
     if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
     dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr",
-                       "return_normalisation", "actor_gradient", "reward_scale")
+                       "return_normalisation", "actor_gradient", "reward_scale", "encoder")
     if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
         parser.error("--slices, --actor-distribution, --exploration, --actor-lr, "
-                     "--return-normalisation, --actor-gradient and --reward-scale are the "
+                     "--return-normalisation, --actor-gradient, --reward-scale and --encoder "
+                     "are the "
                      "Dreamer's (--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
     # a Dreamer actor option that is set names the run's folder and overrides its config
@@ -122,7 +129,8 @@ def main(argv=None) -> None:
                                 ("actor_lr", "lr", ["actor_lr", "critic_lr"]),
                                 ("return_normalisation", "return_", ["return_normalisation"]),
                                 ("actor_gradient", "grad_", ["pixel_actor_gradient"]),
-                                ("reward_scale", "reward", ["pixel_reward_scale"])):
+                                ("reward_scale", "reward", ["pixel_reward_scale"]),
+                                ("encoder", "encoder_", ["pixel_encoder"])):
         value = getattr(args, option)
         if value is not None:
             suffix += f"_{tag}{value:g}" if isinstance(value, float) else f"_{tag}{value}"
@@ -179,7 +187,7 @@ def main(argv=None) -> None:
                "exploration": cfg.pixel_exploration, "actor_lr": cfg.actor_lr,
                "return_normalisation": cfg.return_normalisation,
                "actor_gradient": cfg.pixel_actor_gradient,
-               "reward_scale": cfg.pixel_reward_scale,
+               "reward_scale": cfg.pixel_reward_scale, "encoder": cfg.pixel_encoder,
                "batch": args.batch if args.agent == "sac" else None,
                "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],

@@ -537,20 +537,23 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
                       "--train-every", "10", "--actor-distribution", "trunc_normal",
                       "--exploration", "sample", "--actor-lr", "8e-05",
                       "--return-normalisation", "percentile", "--actor-gradient", "reinforce",
-                      "--reward-scale", "100", "--out", out, capsys=capsys)
+                      "--reward-scale", "100", "--encoder", "keypoints", "--out", out,
+                      capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     v2 = json.loads((out / "cartpole-balance_s0_dreamer_no_dr_every10_actor_trunc_normal"
-                           "_explore_sample_lr8e-05_return_percentile_grad_reinforce_reward100" /
-                     "result_40.json").read_text())
+                           "_explore_sample_lr8e-05_return_percentile_grad_reinforce_reward100"
+                           "_encoder_keypoints" / "result_40.json").read_text())
     assert (v2["actor_distribution"], v2["exploration"], v2["actor_lr"],
-            v2["return_normalisation"], v2["actor_gradient"], v2["reward_scale"]) == (
-        "trunc_normal", "sample", 8e-5, "percentile", "reinforce", 100.0)
+            v2["return_normalisation"], v2["actor_gradient"], v2["reward_scale"],
+            v2["encoder"]) == (
+        "trunc_normal", "sample", 8e-5, "percentile", "reinforce", 100.0, "keypoints")
     assert first["actor_distribution"] == "tanh_normal" and first["exploration"] == "noise"
     assert first["return_normalisation"] == "none" and first["actor_gradient"] == "dynamics"
-    assert first["reward_scale"] == 1.0
+    assert first["reward_scale"] == 1.0 and first["encoder"] == "dreamer"
     for flag, value in (("--slices", "3"), ("--exploration", "sample"),
                         ("--return-normalisation", "percentile"),
-                        ("--actor-gradient", "reinforce"), ("--reward-scale", "10")):
+                        ("--actor-gradient", "reinforce"), ("--reward-scale", "10"),
+                        ("--encoder", "keypoints")):
         proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
                           flag, value, "--out", out, capsys=capsys)
         assert proc.returncode == 2 and "are the Dreamer's" in proc.stderr
@@ -992,7 +995,8 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
 
     recipe = _recipe_module()
     for field, bad in (("pixel_actor_distribution", "beta"), ("pixel_exploration", "greedy"),
-                       ("return_normalisation", "zscore"), ("pixel_actor_gradient", "pathwise")):
+                       ("return_normalisation", "zscore"), ("pixel_actor_gradient", "pathwise"),
+                       ("pixel_encoder", "resnet")):
         with pytest.raises(ConfigError, match=f"unknown {field.removeprefix('pixel_')}"):
             recipe.Config(**{field: bad})
     with pytest.raises(ConfigError, match="reward_scale must be > 0"):
@@ -1004,11 +1008,12 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
     cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "output_dir": str(tmp_path),
                            "pixel_actor_distribution": "trunc_normal",
                            "pixel_exploration": "sample",
-                           "pixel_actor_gradient": "reinforce", "pixel_reward_scale": 10.0})
+                           "pixel_actor_gradient": "reinforce", "pixel_reward_scale": 10.0,
+                           "pixel_encoder": "keypoints"})
     assert (cfg.dreamer().actor_distribution, cfg.dreamer().exploration,
             cfg.dreamer().actor_gradient, cfg.dreamer().reward_scale) == (
         "tanh_normal", "noise", "dynamics", 1.0)
-    assert cfg.pixel_dreamer().reward_scale == 10.0
+    assert cfg.pixel_dreamer().reward_scale == 10.0 and cfg.dreamer().encoder == "dreamer"
     result = recipe.pixel_dreamer_stage(cfg, "cartpole-balance", 0, None, tmp_path / "px")
     agent = load_agent(result["agent"])
     assert (agent.config.actor_distribution, agent.config.exploration,
@@ -1016,6 +1021,8 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
     assert agent.behaviour_loss.actor_gradient == "reinforce"
     assert agent.config.reward_scale == agent.model_loss.reward_scale == 10.0
     assert agent.actor.kind == "trunc_normal"
+    # the saved agent rebuilds its keypoint encoder from its own description
+    assert agent.config.encoder == agent.world_model.encoder.arch == "keypoints"
 
 
 def test_dreamer_latent_probe_reads_saved_and_training_checkpoints(tmp_path, capsys):
@@ -1049,3 +1056,24 @@ def test_dreamer_latent_probe_reads_saved_and_training_checkpoints(tmp_path, cap
     state = DreamerAgent.for_state(5, 1, cfg.dreamer()).save(tmp_path / "state.pt")
     proc = _benchmark("dreamer_latent_probe", "--agent", state, capsys=capsys)
     assert proc.returncode == 2 and "is not a pixel Dreamer agent" in proc.stderr
+
+
+def test_dreamer_latent_probe_fits_a_world_model_alone_on_random_data(tmp_path, capsys):
+    """--fit-random: a fresh pixel Dreamer's world model (here with the keypoint encoder)
+    trains alone on random episodes and is probed after each requested update count;
+    it cannot be mixed with an agent to read, and needs a positive budget."""
+    out = tmp_path / "fit.json"
+    proc = _benchmark("dreamer_latent_probe", "--fit-random", 2, "--updates", 2, 1,
+                      "--preset", "tiny", "--encoder", "keypoints", "--episodes", 2,
+                      "--steps", 6, "--horizon", 3, "--json", out, capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(out.read_text())
+    assert result["agent"] is None and result["encoder"] == "keypoints"
+    assert [f["updates"] for f in result["fits"]] == [1, 2]
+    for fit in result["fits"]:
+        assert len(fit["r2_trained"]) == 5 and set(fit["action_response"]) == {"-1", "+0", "+1"}
+        assert {"loss_reconstruction", "loss_reward", "loss_kl"} <= set(fit["losses"])
+    for bad in (("--fit-random", 2, "--agent", "x.pt"), (), ("--fit-random", 0),
+                ("--fit-random", 2, "--dr")):
+        proc = _benchmark("dreamer_latent_probe", *bad, capsys=capsys)
+        assert proc.returncode == 2, bad

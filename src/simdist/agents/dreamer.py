@@ -24,6 +24,7 @@ from simdist.agents import checkpoint as ckpt_format
 from simdist.agents.action_spec import action_bounds
 from simdist.agents.describe import build_dreamer_model, describe_dreamer_model
 from simdist.modules import Actor, DreamerWorldModel, ScalarHead
+from simdist.modules.encoders import PixelEncoder
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss, ReturnScale
 from simdist.objectives.dreamer import ACTOR_GRADIENTS
@@ -70,6 +71,10 @@ class DreamerConfig:
     # reward_scale; 1: DreamerV2). The image term sums over 64x64x3 values, so at 1 the
     # reward is a small share of what shapes the latent
     reward_scale: float = 1.0
+    # how a pixel Dreamer reads its image (PixelEncoder.arch): "dreamer", the CNN, or
+    # "keypoints", spatial-softmax keypoints (where things are: a thin pole's lean);
+    # state Dreamers have no image encoder and ignore it
+    encoder: str = "dreamer"
 
     def __post_init__(self):
         if self.actor_distribution not in Actor.DISTRIBUTIONS:
@@ -84,6 +89,9 @@ class DreamerConfig:
                              f"valid: {list(RETURN_NORMALISATIONS)}")
         if not self.reward_scale > 0:
             raise ValueError(f"DreamerConfig: reward_scale must be > 0, got {self.reward_scale}")
+        if self.encoder not in PixelEncoder.ARCHS:
+            raise ValueError(f"DreamerConfig: unknown encoder {self.encoder!r}; "
+                             f"valid: {list(PixelEncoder.ARCHS)}")
         if self.actor_gradient not in ACTOR_GRADIENTS:
             raise ValueError(f"DreamerConfig: unknown actor_gradient {self.actor_gradient!r}; "
                              f"valid: {list(ACTOR_GRADIENTS)}")
@@ -207,15 +215,16 @@ class DreamerAgent(ckpt_format.LoadableAgent):
     @classmethod
     def for_pixels(cls, action_dim: int, config: DreamerConfig = DreamerConfig()):
         """Dreamer from ``"pixels"`` (the TWIST paper's pixel baselines)."""
-        return cls(DreamerWorldModel.pixel_dreamer(action_dim, config.size), action_dim,
-                   config, obs_key="pixels")
+        return cls(DreamerWorldModel.pixel_dreamer(action_dim, config.size, config.encoder),
+                   action_dim, config, obs_key="pixels")
 
     @classmethod
     def for_pixels_state_recon(cls, action_dim: int, state_dim: int,
                                config: DreamerConfig = DreamerConfig()):
         """Dreamer State Recon. (TWIST baseline): acts from ``"pixels"``, its decoder
         reconstructs the privileged ``"state"`` of each step instead of the image."""
-        return cls(DreamerWorldModel.pixel_state_recon(action_dim, state_dim, config.size),
+        return cls(DreamerWorldModel.pixel_state_recon(action_dim, state_dim, config.size,
+                                                       config.encoder),
                    action_dim, config, obs_key="pixels", reconstruct_key="state")
 
     def policy(self, explore: bool = True, action_spec=None) -> DreamerPolicy:

@@ -107,21 +107,24 @@ class DreamerWorldModel(nn.Module):
         return cls(encoder, rssm)
 
     @classmethod
-    def pixel_dreamer(cls, action_dim: int, size: str = "small") -> DreamerWorldModel:
-        """Dreamer from pixels (baseline): CNN encoder, pixel decoder, reward head."""
+    def pixel_dreamer(cls, action_dim: int, size: str = "small",
+                      encoder: str = "dreamer") -> DreamerWorldModel:
+        """Dreamer from pixels (baseline): CNN encoder, pixel decoder, reward head;
+        ``encoder="keypoints"`` reads the image with spatial-softmax keypoints instead
+        (:class:`PixelEncoder` ``arch``), the decoder stays the CNN's."""
         s = _size(size)
-        model = cls.student(action_dim, size)
+        model = cls.student(action_dim, size, arch=encoder)
         model.decoder = PixelDecoder(model.rssm.feature_dim, s["depth"])
         model.reward_head = ScalarHead(model.rssm.feature_dim, s["head"])
         return model
 
     @classmethod
-    def pixel_state_recon(cls, action_dim: int, state_dim: int,
-                          size: str = "small") -> DreamerWorldModel:
-        """Dreamer State Recon. (TWIST baseline): CNN encoder, a decoder of the
-        privileged *state* instead of the image, reward head."""
+    def pixel_state_recon(cls, action_dim: int, state_dim: int, size: str = "small",
+                          encoder: str = "dreamer") -> DreamerWorldModel:
+        """Dreamer State Recon. (TWIST baseline): CNN (or ``encoder="keypoints"``)
+        encoder, a decoder of the privileged *state* instead of the image, reward head."""
         s = _size(size)
-        model = cls.student(action_dim, size)
+        model = cls.student(action_dim, size, arch=encoder)
         model.decoder = StateDecoder(model.rssm.feature_dim, state_dim, s["head"])
         model.reward_head = ScalarHead(model.rssm.feature_dim, s["head"])
         return model

@@ -244,6 +244,9 @@ class Config:
     # the pixel Dreamers' reward weight in their world-model loss (DreamerConfig.
     # reward_scale; the teacher's is 1)
     pixel_reward_scale: float = 1.0
+    # how the pixel Dreamers read their image (DreamerConfig.encoder): "dreamer", the CNN,
+    # or "keypoints", spatial-softmax keypoints
+    pixel_encoder: str = "dreamer"
     # the Dreamers' actor returns (teacher and pixel Dreamers; DreamerConfig.
     # return_normalisation): "none" (DreamerV2) or "percentile", divided by their running
     # 95th-5th percentile range (DreamerV3), so the entropy bonus is not swamped
@@ -348,7 +351,7 @@ class Config:
               f"--env-steps)")
         check_builds("dreamer", self.dreamer)
         check_builds("pixel_actor_distribution / pixel_exploration / pixel_actor_gradient / "
-                     "pixel_reward_scale", self.pixel_dreamer)
+                     "pixel_reward_scale / pixel_encoder", self.pixel_dreamer)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
 
@@ -377,7 +380,8 @@ class Config:
                                    actor_distribution=self.pixel_actor_distribution,
                                    exploration=self.pixel_exploration,
                                    actor_gradient=self.pixel_actor_gradient,
-                                   reward_scale=self.pixel_reward_scale)
+                                   reward_scale=self.pixel_reward_scale,
+                                   encoder=self.pixel_encoder)
 
 
 PRESETS = {
