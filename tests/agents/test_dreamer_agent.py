@@ -98,9 +98,33 @@ def test_reward_scale_weighs_the_world_models_reward_term():
 
 def test_dreamer_config_refuses_unknown_actor_forms():
     for field, value in (("actor_distribution", "beta"), ("exploration", "epsilon"),
-                         ("return_normalisation", "zscore"), ("actor_gradient", "pathwise")):
+                         ("return_normalisation", "zscore"), ("actor_gradient", "pathwise"),
+                         ("encoder", "resnet")):
         with pytest.raises(ValueError, match=f"unknown {field} '{value}'"):
             DreamerConfig(**{field: value})
+
+
+def test_pixel_dreamers_read_their_image_with_the_configured_encoder(tmp_path):
+    """``encoder="keypoints"``: both pixel Dreamers read the image with spatial-softmax
+    keypoints (the state-recon one too), train on images, and a saved agent comes back
+    with the same encoder; the default stays the CNN."""
+    config = DreamerConfig(size="tiny", encoder="keypoints")
+    td = TensorDict({"action": torch.zeros(2, 4, 1),
+                     "is_init": torch.zeros(2, 4, 1, dtype=torch.bool),
+                     "next": {"pixels": torch.randint(0, 255, (2, 4, 64, 64, 3),
+                                                      dtype=torch.uint8),
+                              "state": torch.zeros(2, 4, 5), "reward": torch.zeros(2, 4, 1),
+                              "terminated": torch.zeros(2, 4, 1, dtype=torch.bool)}}, [2, 4])
+    for agent in (DreamerAgent.for_pixels(1, config),
+                  DreamerAgent.for_pixels_state_recon(1, 5, config)):
+        assert agent.world_model.encoder.arch == "keypoints"
+        assert torch.isfinite(torch.tensor(agent.update(td.clone())["loss_reconstruction"]))
+        loaded = DreamerAgent.load(agent.save(tmp_path / "agent.pt"))
+        assert loaded.world_model.encoder.arch == "keypoints"
+        torch.testing.assert_close(loaded.world_model.encoder.state_dict(),
+                                   agent.world_model.encoder.state_dict())
+    assert DreamerAgent.for_pixels(1, DreamerConfig(size="tiny")).world_model.encoder.arch == \
+        "dreamer"
 
 
 def test_return_normalisation_is_kept_through_updates_checkpoints_and_resumes(tmp_path):
