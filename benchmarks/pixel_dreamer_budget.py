@@ -118,8 +118,7 @@ def main(argv=None) -> None:
     if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
         parser.error("--slices, --actor-distribution, --exploration, --actor-lr, "
                      "--return-normalisation, --actor-gradient, --reward-scale and --encoder "
-                     "are the "
-                     "Dreamer's (--agent dreamer)")
+                     "are the Dreamer's (--agent dreamer)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
     # a Dreamer actor option that is set names the run's folder and overrides its config
     # fields; unset, the preset's applies
