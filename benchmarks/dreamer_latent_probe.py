@@ -162,11 +162,8 @@ def fit_random(cfg, task: str, seed: int, episodes: int, updates: list[int], rep
             episode = rollout(env, None, cfg.episode_steps)
         replay.add(episode.select(*dreamer_keys("pixels")).to_tensordict())
     env.close()
-    params = list(agent.world_model.parameters())
     for n in tqdm(range(1, max(updates) + 1), desc="world-model updates"):
-        out = agent.model_loss(replay.sample())
-        agent._step(sum(v for k, v in out.items() if k.startswith("loss_")),
-                    agent.model_optim, params)
+        out = agent.update_world_model(replay.sample().to(agent.device))
         if n in updates:
             report(agent, n, {k: round(v.item(), 4) for k, v in out.items()})
 

@@ -361,12 +361,18 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         torch.nn.utils.clip_grad_norm_(params, self.config.grad_clip)
         optim.step()
 
+    def update_world_model(self, batch: TensorDictBase) -> TensorDictBase:
+        """One world-model step on ``batch`` (on the agent's device); returns the loss
+        terms and writes ``("posterior", ...)`` into ``batch`` for the actor-critic."""
+        model_out = self.model_loss(batch)
+        model_total = sum(v for k, v in model_out.items() if k.startswith("loss_"))
+        self._step(model_total, self.model_optim, list(self.world_model.parameters()))
+        return model_out
+
     def update(self, batch: TensorDictBase) -> dict[str, float]:
         """One world-model step, then one actor and one critic step; returns the terms."""
         batch = batch.to(self.device)
-        model_out = self.model_loss(batch)  # also writes ("posterior", ...) into batch
-        model_total = sum(v for k, v in model_out.items() if k.startswith("loss_"))
-        self._step(model_total, self.model_optim, list(self.world_model.parameters()))
+        model_out = self.update_world_model(batch)
         behaviour = self.behaviour_loss(batch)
         self._step(behaviour["loss_actor"], self.actor_optim, list(self.actor.parameters()))
         self._step(behaviour["loss_critic"], self.critic_optim, list(self.critic.parameters()))
