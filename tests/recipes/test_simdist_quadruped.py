@@ -363,6 +363,10 @@ def test_planner_flags_reach_the_planner_config():
     (["--finetune-priority-alpha", "inf"], "finetune_priority_alpha: must be >= 0 and finite"),
     (["--finetune-priority-beta", "-0.5"], "finetune_priority_beta: must be >= 0"),
     (["--ensemble-size", "0"], "ensemble_size: must be > 0"),
+    (["--finetune-sim-fraction", "1"], "finetune_sim_fraction: needs 0 <= fraction < 1"),
+    (["--finetune-sim-fraction", "0.001"], "(0 simulation slices)"),
+    (["--finetune-sim-fraction", "0.5", "--finetune-priority-alpha", "1"],
+     "cannot be combined with --finetune-priority-alpha"),
     (["--ensemble-shared-encoder"], "ensemble_shared_encoder: needs --ensemble-size > 1"),
     (["--model-ignored-observations", "toes"], "unknown observation groups ['toes']"),
 ])
@@ -371,6 +375,32 @@ def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, mes
     assert proc.returncode == 2
     assert message in " ".join(proc.stderr.replace("│", " ").split())
     assert not (tmp_path / "out").exists()
+
+
+def test_co_training_mixes_dataset_slices_into_both_finetuned_methods(tmp_path, tiny_expert,
+                                                                      capsys, monkeypatch):
+    from simdist.agents import SimDistAgent
+    from simdist.data import load_dataset
+    seen = {"finetune_update": [], "finetune_whole_update": []}
+    for name in seen:
+        def spy(self, batch, *args, _original=getattr(SimDistAgent, name), _name=name, **kwargs):
+            seen[_name].append(batch.clone())
+            return _original(self, batch, *args, **kwargs)
+        monkeypatch.setattr(SimDistAgent, name, spy)
+    proc = _run_here("--preset", "tiny", "--expert", tiny_expert, "--no-record",
+                     "--finetune-sim-fraction", 0.5, "--output-dir", tmp_path, capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    dataset = load_dataset(tmp_path / "stages" / "dataset" / "data", 8, 8)[:]["observation"]
+    for name, batches in seen.items():
+        assert len(batches) == 2 * 3  # two rounds of the tiny preset's 3 updates
+        for batch in batches:  # tiny: 4 slices per batch, 2 of them from the dataset
+            assert batch["from_simulation"][:, :, 0].all(1).tolist() == [False, False, True, True]
+            assert not batch["from_simulation"][:2].any()
+            first = batch["observation"][:, 0]  # each slice's first step, found in the dataset?
+            found = [(dataset == row).all(-1).any().item() for row in first]
+            assert found[2:] == [True, True] and found[:2] == [False, False], name
+    config = json.loads((tmp_path / "config.json").read_text())
+    assert config["finetune_sim_fraction"] == 0.5
 
 
 def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, tiny_expert,

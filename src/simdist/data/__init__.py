@@ -1,5 +1,6 @@
 """Data: perturbed-expert action schedules, policy mixtures and on-disk datasets."""
 
+from simdist.data.cotraining import CoTrainingSlices
 from simdist.data.dataset import (DatasetConfig, collect_shards, generate_dataset, generate_shard,
                                   load_dataset, shard_seed)
 from simdist.data.mixture import EpisodeMixture
@@ -8,4 +9,4 @@ from simdist.data.prioritised_slices import PrioritisedSlices, prioritised_updat
 
 __all__ = ["ActionPerturbation", "PerturbationSchedule", "EpisodeMixture", "DatasetConfig",
            "collect_shards", "generate_dataset", "generate_shard", "load_dataset", "shard_seed",
-           "PrioritisedSlices", "prioritised_update"]
+           "PrioritisedSlices", "prioritised_update", "CoTrainingSlices"]

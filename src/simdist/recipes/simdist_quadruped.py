@@ -38,7 +38,7 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from simdist.agents import SimDistAgent, SimDistConfig, action_bounds
-from simdist.data import (DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
+from simdist.data import (CoTrainingSlices, DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
                           load_dataset)
 from simdist.data.dataset import read_dataset_meta
 from simdist.data.prioritised_slices import PrioritisedSlices, prioritised_update
@@ -70,6 +70,8 @@ SIMDIST = "SimDist: finetune dynamics"  # the method the paired table compares a
 SIMNORM_GROUP = 8  # latent dimensions per SimNorm group when --model-latent-dim resizes it
 TARGET_KEYS = ["observation", "action", "is_init", ("next", "observation"),
                ("next", "reward"), ("next", "done"), ("next", "terminated")]
+# what the finetuning losses read: the entries target and simulation slices share
+FINETUNE_KEYS = ["observation", "action", "is_init", ("next", "reward")]
 
 
 @dataclass
@@ -275,6 +277,11 @@ class Config:
     # lean towards the worst slices): compare runs by their evaluations, not their losses.
     finetune_priority_alpha: float = 0.0
     finetune_priority_beta: float = 0.4
+    # co-training: the share of each finetuning batch's slices drawn from the simulation
+    # dataset the model was pretrained on (data.CoTrainingSlices), the rest from the target
+    # data, for both finetuned methods. It keeps the finetuned part fitted where the few
+    # minutes of target data say nothing. 0: target slices only, the reference.
+    finetune_sim_fraction: float = field(default=0.0, metadata={ABSENT_MEANS: 0.0})
     sac_batch_size: int = 256  # continued-SAC baseline batch size
     output_dir: str = "outputs/simdist_quadruped"  # stages, results and plots go here
     # where the world model and probe train and plan ("cpu", "cuda", "auto"); envs, the
@@ -311,7 +318,17 @@ class Config:
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
                        "model_history", "model_dynamics_hidden", "model_latent_dim", "threads",
                        "finetune_reward_weight", "finetune_value_weight",
-                       "finetune_priority_alpha", "finetune_priority_beta", allow_zero=True)
+                       "finetune_priority_alpha", "finetune_priority_beta",
+                       "finetune_sim_fraction", allow_zero=True)
+        sim_slices = self.finetune_sim_slices()
+        check(self.finetune_sim_fraction < 1 and (self.finetune_sim_fraction == 0
+                                                  or 0 < sim_slices < self.batch_slices),
+              "finetune_sim_fraction", f"needs 0 <= fraction < 1 leaving at least one "
+              f"simulation and one target slice of the {self.batch_slices} per batch, got "
+              f"{self.finetune_sim_fraction} ({sim_slices} simulation slices)")
+        check(self.finetune_sim_fraction == 0 or self.finetune_priority_alpha == 0,
+              "finetune_sim_fraction", "cannot be combined with --finetune-priority-alpha "
+              "(the priorities rank target slices only)")
         check(self.model_latent_dim % SIMNORM_GROUP == 0, "model_latent_dim",
               f"must be a multiple of {SIMNORM_GROUP} (SimNorm's group), got {self.model_latent_dim}")
         check(self.model_horizon < self.slice_len <= self.episode_steps, "slice_len",
@@ -351,6 +368,10 @@ class Config:
               "world model observes proprioception and the height scan (use recipes/twist_dmc.py)")
         if self.target not in self.expert_targets:
             self.expert_targets = [*self.expert_targets, self.target]
+
+    def finetune_sim_slices(self) -> int:
+        """Slices of each finetuning batch drawn from the simulation dataset."""
+        return round(self.finetune_sim_fraction * self.batch_slices)
 
     def planner(self) -> PlannerConfig:
         return PlannerConfig(horizon=self.planner_horizon, num_samples=self.planner_samples,
@@ -710,8 +731,11 @@ def previous_members(previous: dict, name: str) -> list[str]:
 
 
 def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_dir: Path,
-                previous: dict | None, logger=None) -> dict:
-    """One round: collect with the current SimDist planner, finetune all methods, evaluate."""
+                previous: dict | None, logger=None, dataset: str | None = None) -> dict:
+    """One round: collect with the current SimDist planner, finetune all methods, evaluate.
+
+    ``dataset`` (the pretraining dataset's path) is read only when
+    ``cfg.finetune_sim_fraction > 0``."""
     budget = round(cfg.budgets_min[k] * STEPS_PER_MINUTE)
     done_before = previous["target_steps"] if previous else 0
     data_dir = stage_dir / "data"
@@ -723,8 +747,13 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     fresh = load_memmap(data_dir)
     parts = [load_memmap(Path(p)) for p in (previous["data"] if previous else [])]
     data = torch.cat([*parts, fresh], 0)
-    buffer = as_slices(data, cfg.slice_len, cfg.batch_slices)
+    sim_slices = cfg.finetune_sim_slices()
+    buffer = as_slices(data, cfg.slice_len, cfg.batch_slices - sim_slices)
     sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731
+    if sim_slices:  # co-training: part of every batch from the pretraining dataset
+        sim_buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * sim_slices)
+        sample = CoTrainingSlices(sample, lambda: sim_buffer.sample().reshape(-1, cfg.slice_len),
+                                  keys=FINETUNE_KEYS)
     results = {"target_steps": done_before + fresh.numel(),
                "data": [*(previous["data"] if previous else []), str(data_dir)]}
 
@@ -884,7 +913,7 @@ def run(cfg: Config) -> dict:
     rounds, previous = [], None
     for k in range(len(cfg.budgets_min)):
         previous = stage(f"round_{k + 1}", lambda d, k=k, p=previous: round_stage(
-            cfg, k, pretrained, expert["path"], d, p, logger))
+            cfg, k, pretrained, expert["path"], d, p, logger, dataset["path"]))
         rounds.append(previous)
 
     recordings = (stage("recordings",
