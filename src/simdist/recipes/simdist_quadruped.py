@@ -280,7 +280,10 @@ class Config:
     # co-training: the share of each finetuning batch's slices drawn from the simulation
     # dataset the model was pretrained on (data.CoTrainingSlices), the rest from the target
     # data, for both finetuned methods. It keeps the finetuned part fitted where the few
-    # minutes of target data say nothing. 0: target slices only, the reference.
+    # minutes of target data say nothing. 0: target slices only, the reference. Half
+    # (0.5) measured on slippery_slope, seeds 0 and 2: level at 2 minutes, -15 [-25, -7]
+    # points at 8 (the fastest command 15% against 47%); on foam -4 [-9, 0]
+    # (benchmarks/README.md, "Co-training with the simulation dataset").
     finetune_sim_fraction: float = field(default=0.0, metadata={ABSENT_MEANS: 0.0})
     sac_batch_size: int = 256  # continued-SAC baseline batch size
     output_dir: str = "outputs/simdist_quadruped"  # stages, results and plots go here
