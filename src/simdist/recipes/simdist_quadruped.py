@@ -38,8 +38,8 @@ from tensordict import TensorDict
 from tqdm import tqdm
 
 from simdist.agents import SimDistAgent, SimDistConfig, action_bounds
-from simdist.data import (CoTrainingSlices, DatasetConfig, PerturbationSchedule, generate_dataset, generate_shard,
-                          load_dataset)
+from simdist.data import (CoTrainingSlices, DatasetConfig, PerturbationSchedule,
+                          generate_dataset, generate_shard, load_dataset)
 from simdist.data.dataset import read_dataset_meta
 from simdist.data.prioritised_slices import PrioritisedSlices, prioritised_update
 from simdist.envs import TASKS, Layout, describe_ranges, get_target, make_env
@@ -754,6 +754,9 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     buffer = as_slices(data, cfg.slice_len, cfg.batch_slices - sim_slices)
     sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731
     if sim_slices:  # co-training: part of every batch from the pretraining dataset
+        if dataset is None:
+            raise ValueError("finetune_sim_fraction > 0 needs the pretraining dataset's path "
+                             "(round_stage(dataset=...))")
         sim_buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * sim_slices)
         sample = CoTrainingSlices(sample, lambda: sim_buffer.sample().reshape(-1, cfg.slice_len),
                                   keys=FINETUNE_KEYS)
