@@ -132,8 +132,9 @@ class RSSM(nn.Module):
 
         Step ``t`` advances the belief with ``prev_action[:, t]`` (the action that led to
         the observation embedded in ``embed[:, t]``), then conditions on ``embed[:, t]``.
-        Where ``is_first[:, t]`` is set, the state entering step ``t`` is reset to zero,
-        so sequences that cross an episode boundary never leak state across it. Without
+        Where ``is_first[:, t]`` is set, the state entering step ``t`` and
+        ``prev_action[:, t]`` (the previous episode's last action) are reset to zero, so
+        sequences that cross an episode boundary never leak state across it. Without
         ``state`` the slice starts from the zero state.
 
         Returns:
@@ -156,7 +157,8 @@ class RSSM(nn.Module):
     def filter_step(self, state: RSSMState, prev_action: torch.Tensor, embed: torch.Tensor,
                     keep: torch.Tensor | None = None, noise: torch.Tensor | None = None,
                     record: dict | None = None) -> RSSMState:
-        """One filtering step (deployment): reset where ``keep == 0``, predict, correct."""
+        """One filtering step (deployment): zero the state and ``prev_action`` where
+        ``keep == 0`` (an episode's first step), predict, correct."""
         if keep is not None:
             state = RSSMState(state.belief * keep, state.stoch * keep)
             prev_action = prev_action * keep
