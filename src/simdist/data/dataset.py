@@ -67,6 +67,8 @@ class DatasetConfig:
     final_expert_probability: float = 0.5
     schedule: PerturbationSchedule = field(default_factory=PerturbationSchedule)
     speeds: tuple = (0.25, 0.5, 0.75)
+    # the quadruped task's ``upright_power`` (the reward's exponent of the upright term)
+    upright_power: float = 1.0
     seed: int = 0
 
     def __post_init__(self):
@@ -102,6 +104,20 @@ def _versions() -> dict:
     return out
 
 
+def task_kwargs(cfg: DatasetConfig) -> dict:
+    """The task options a dataset's env is built with; ``upright_power`` only when it is
+    not 1, so tasks without it (the control suite's) keep working.
+
+    Examples:
+        >>> task_kwargs(DatasetConfig(upright_power=10.0))
+        {'speeds': (0.25, 0.5, 0.75), 'upright_power': 10.0}
+    """
+    kwargs = {"speeds": tuple(cfg.speeds)}
+    if cfg.upright_power != 1.0:
+        kwargs["upright_power"] = float(cfg.upright_power)
+    return kwargs
+
+
 def make_generation_env(cfg: DatasetConfig):
     """The env a shard is rolled out in (reused across shards, reseeded for each).
 
@@ -116,7 +132,7 @@ def make_generation_env(cfg: DatasetConfig):
     make = functools.partial(
         make_env, cfg.task, num_envs=cfg.shard_episodes // cfg.num_workers, seed=cfg.seed,
         pixels=cfg.pixels, image_size=cfg.image_size, max_episode_steps=cfg.episode_steps + 1,
-        task_kwargs={"speeds": tuple(cfg.speeds)},
+        task_kwargs=task_kwargs(cfg),
         dynamics_randomisation=DynamicsRandomisation() if cfg.dynamics_randomisation else None)
     return make() if cfg.num_workers == 1 else ParallelEnv(cfg.num_workers, make)
 
@@ -285,7 +301,8 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
     data = None
     if meta_path.exists():
         meta = read_dataset_meta(out)
-        if meta["config"] != config:
+        # a dataset generated before upright_power existed used the plain reward (1.0)
+        if {"upright_power": 1.0, **meta["config"]} != config:
             raise RunFolderError(f"{out} holds a dataset generated with a different config; "
                              "use another directory or the same settings to resume")
         # Pre-allocated at full size by the first shard: sizes are checked, never extended.

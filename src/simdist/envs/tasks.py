@@ -70,7 +70,7 @@ def _suite_builder(domain: str, task: str):
 def _quadruped_builder(default_slope: float, default_range: tuple | None = None):
     def build(target: TargetDomain, seed, speeds=(0.25, 0.5, 0.75), slope_deg=default_slope,
               slope_range_deg=default_range, upside_down_termination=None,
-              texture_size: int = 64):
+              upright_power=1.0, texture_size: int = 64):
         # A target's slope is its fixed geometry: it replaces any per-episode range.
         if target.slope_deg:
             slope, slope_range_deg = target.slope_deg, None
@@ -81,7 +81,7 @@ def _quadruped_builder(default_slope: float, default_range: tuple | None = None)
         task = quadruped.QuadrupedLocomotion(speeds=speeds, slope_deg=slope,
                                              slope_range_deg=slope_range_deg,
                                              upside_down_termination=upside_down_termination,
-                                             random=seed)
+                                             upright_power=upright_power, random=seed)
         n_sub_steps = int(round(quadruped.CONTROL_TIMESTEP / physics.timestep()))
         return physics, task, n_sub_steps
     return build

@@ -23,16 +23,21 @@ TIPPED = 0.5  # body-frame gravity z: below it the body's vertical is 60 degrees
 
 
 def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), task="quadruped-flat",
-                   speeds=(0.25, 0.5, 0.75), upside_down_termination: float | None = None):
+                   speeds=(0.25, 0.5, 0.75), upside_down_termination: float | None = None,
+                   upright_power: float = 1.0):
     """A batched quadruped env (one world per episode) with ``InitTracker`` and primers.
 
     With ``upside_down_termination`` (see :class:`~simdist.envs.quadruped.QuadrupedLocomotion`)
     a world that rolls onto its back ends its episode and starts a new one within the
     same ``steps`` (its row of a :func:`rollout` then holds several episodes).
+    ``upright_power`` is the task reward's exponent of the upright term (passed on when
+    it is not 1).
     """
     kwargs = {"speeds": tuple(speeds)}
     if upside_down_termination is not None:
         kwargs["upside_down_termination"] = upside_down_termination
+    if upright_power != 1.0:
+        kwargs["upright_power"] = float(upright_power)
     env = TransformedEnv(make_env(task, target=target, num_envs=episodes, seed=seed,
                                   max_episode_steps=steps, task_kwargs=kwargs),
                          InitTracker())

@@ -262,6 +262,12 @@ class Config:
     # same; the finetuning losses drop every prediction across a reset; evaluation
     # episodes always run their full length.
     collect_reset_upside_down: bool = False
+    # The task reward's exponent of its upright term, for every stage that records or
+    # reads rewards (the dataset, target data, evaluations; the committed expert was
+    # trained with 1). At 1 a 30-degree tilt still pays 0.93, so neither the reward head
+    # nor the 20-step plan sees this quadruped rear up before it goes over the tail
+    # (benchmarks/README.md, "How the slow command falls"); at 10 it pays half.
+    reward_upright_power: float = 1.0
     finetune_updates: int = 1000  # per round, for every method (same data, same updates)
     finetune_lr: float = 1e-4  # dynamics-only (and whole-model ablation) learning rate
     # finetuning terms through the frozen heads (DynamicsFinetuneLoss; the ablation gets the
@@ -317,7 +323,8 @@ class Config:
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
                        "dataset_shard_episodes", "dataset_workers", "model_horizon",
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",
-                       "finetune_lr", "sac_batch_size", "pretrain_updates", "ensemble_size")
+                       "finetune_lr", "sac_batch_size", "pretrain_updates", "ensemble_size",
+                       "reward_upright_power")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
                        "model_history", "model_dynamics_hidden", "model_latent_dim", "threads",
                        "finetune_reward_weight", "finetune_value_weight",
@@ -432,7 +439,8 @@ def evaluate(cfg: Config, target: str, policy, primers=(), seed_offset: int = 10
     Every method is evaluated on the same seeds (same initial states and speeds).
     """
     env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
-                         cfg.seed + seed_offset, primers=primers, task=cfg.task)
+                         cfg.seed + seed_offset, primers=primers, task=cfg.task,
+                         upright_power=cfg.reward_upright_power)
     stats = episode_stats(rollout(env, policy, cfg.episode_steps, desc=f"evaluate in {target}"),
                           env.base_env.observation_layout)
     env.close()
@@ -448,7 +456,8 @@ def dataset_config(cfg: Config) -> DatasetConfig:
     return DatasetConfig(task=cfg.data_task, episodes=cfg.dataset_episodes,
                          episode_steps=cfg.episode_steps, shard_episodes=cfg.dataset_shard_episodes,
                          num_workers=cfg.dataset_workers, seed=cfg.seed,
-                         schedule=PerturbationSchedule(dither_std=cfg.dataset_dither_std))
+                         schedule=PerturbationSchedule(dither_std=cfg.dataset_dither_std),
+                         upright_power=cfg.reward_upright_power)
 
 
 def load_experts(expert_path: str) -> tuple[Expert, list[Expert]]:
@@ -652,6 +661,7 @@ def evaluate_planner(cfg: Config, agent: SimDistAgent, target: str,
     """Plans with ``agent``'s world model in ``target``; returns stats and the rollout."""
     env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
                          cfg.seed + seed_offset, task=cfg.task,
+                         upright_power=cfg.reward_upright_power,
                          primers=[agent.make_primer(cfg.planner().latency_compensation)])
     spec = env.action_spec
     policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
@@ -670,7 +680,7 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
     for start in range(0, episodes, cfg.collect_episodes):
         n = min(cfg.collect_episodes, episodes - start)
         env = locomotion_env(get_target(cfg.target), n, cfg.episode_steps, seed + start,
-                             task=cfg.task,
+                             task=cfg.task, upright_power=cfg.reward_upright_power,
                              primers=[agent.make_primer(cfg.planner().latency_compensation)],
                              upside_down_termination=(UPSIDE_DOWN if cfg.collect_reset_upside_down
                                                       else None))
@@ -849,7 +859,7 @@ def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out
         probe_net.load_state_dict(load_checkpoint(probe["path"]))
         probe_net = FirstMemberProbe(probe_net, pretrained_latent_dim(agent)).to(cfg.device)
         env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, cfg.seed + 10_000,
-                             task=cfg.task,
+                             task=cfg.task, upright_power=cfg.reward_upright_power,
                              primers=[agent.make_primer(cfg.planner().latency_compensation)])
         spec = env.action_spec
         policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
