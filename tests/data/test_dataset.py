@@ -1,6 +1,8 @@
 """On-disk perturbed-expert datasets: resumable without duplicates or losses; clean slices."""
 
+import dataclasses
 import json
+import shutil
 
 import pytest
 import torch
@@ -81,6 +83,32 @@ def test_resume_with_a_different_config_is_refused(reference, experts):
     with pytest.raises(RunFolderError, match="different config"):
         generate_dataset(DatasetConfig(episodes=6, shard_episodes=2, episode_steps=13),
                          reference, *experts, progress=False)
+
+
+def test_a_powered_upright_term_lowers_only_the_rewards(tmp_path, reference, experts):
+    """The same seed with ``upright_power=3``: the same trajectories (the reward does not
+    steer the policy), every reward at most the plain one, and lower where the body tilts."""
+    powered_cfg = dataclasses.replace(CFG, upright_power=3.0)
+    powered = load_memmap(generate_dataset(powered_cfg, tmp_path, *experts, progress=False)
+                          / "data")
+    plain = load_memmap(reference / "data")
+    assert torch.equal(powered["observation"], plain["observation"])
+    assert torch.equal(powered["action"], plain["action"])
+    r, r3 = plain["next", "reward"], powered["next", "reward"]
+    assert (r3 <= r + 1e-6).all() and (r3 < r - 1e-6).any()
+
+
+def test_a_dataset_from_before_upright_power_resumes_as_the_plain_reward(tmp_path, reference,
+                                                                         experts):
+    old = tmp_path / "old"
+    shutil.copytree(reference, old)
+    meta = json.loads((old / "meta.json").read_text())
+    del meta["config"]["upright_power"]  # as written before the field existed
+    (old / "meta.json").write_text(json.dumps(meta))
+    generate_dataset(CFG, old, *experts, progress=False)  # the same command: nothing to do
+    with pytest.raises(RunFolderError, match="different config"):
+        generate_dataset(dataclasses.replace(CFG, upright_power=10.0), old, *experts,
+                         progress=False)
 
 
 def test_slices_never_cross_episode_boundaries(reference):

@@ -363,6 +363,8 @@ def test_planner_flags_reach_the_planner_config():
     (["--finetune-priority-alpha", "inf"], "finetune_priority_alpha: must be >= 0 and finite"),
     (["--finetune-priority-beta", "-0.5"], "finetune_priority_beta: must be >= 0"),
     (["--ensemble-size", "0"], "ensemble_size: must be > 0"),
+    (["--reward-upright-power", "0"], "reward_upright_power: must be > 0"),
+    (["--reward-upright-power", "nan"], "reward_upright_power: must be > 0 and finite"),
     (["--finetune-sim-fraction", "1"], "finetune_sim_fraction: needs 0 <= fraction < 1"),
     (["--finetune-sim-fraction", "0.001"], "(0 simulation slices)"),
     (["--finetune-sim-fraction", "0.5", "--finetune-priority-alpha", "1"],
@@ -541,3 +543,29 @@ def test_collecting_with_reset_upside_down_starts_a_fallen_world_again(reset, mo
     assert starts == ([0, 5] if reset else [0])
     assert data["next", "terminated"][1, 4].item() is reset
     assert not data["is_init"][0, 1:].any()  # the upright world runs on
+
+
+def test_the_reward_exponent_reaches_every_env_the_recipe_steps(monkeypatch):
+    """``--reward-upright-power``: the dataset's config and the envs of collection,
+    evaluation and planner evaluation all carry it (their rewards: tests/envs)."""
+    from simdist.recipes import simdist_quadruped as recipe
+    cfg = recipe.Config(model_size="tiny", model_latent_dim=0, episode_steps=8, slice_len=6,
+                        model_horizon=3, collect_episodes=2, episodes=2, planner_horizon=3,
+                        planner_samples=16, planner_iterations=1, planner_elites=4,
+                        planner_precision="none", expert_targets=["sim"],
+                        reward_upright_power=10.0)
+    assert recipe.dataset_config(cfg).upright_power == 10.0
+    assert recipe.dataset_config(recipe.Config()).upright_power == 1.0
+    agent = recipe.new_agent(cfg, obs_dim=89, action_dim=12)
+    powers, make_env = [], recipe.locomotion_env
+
+    def spy(*args, **kwargs):
+        env = make_env(*args, **kwargs)
+        powers.append({sim.task.upright_power for sim in env.base_env.sims})
+        return env
+
+    monkeypatch.setattr(recipe, "locomotion_env", spy)
+    recipe.collect_target_data(cfg, agent, steps=16, seed=0)
+    recipe.evaluate_planner(cfg, agent, "sim")
+    recipe.evaluate(cfg, "sim", lambda td: td.set("action", torch.zeros(*td.batch_size, 12)))
+    assert powers == [{10.0}] * 3
