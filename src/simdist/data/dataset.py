@@ -38,7 +38,7 @@ from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 from simdist.envs import DynamicsRandomisation, make_env
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.memmap import CorruptDataError, folder_manifest, load_memmap
-from simdist.utils.stages import RunFolderError
+from simdist.utils.stages import RunFolderError, field_defaults
 
 _DROP_NEXT = ("observation", "state", "pixels", "dynamics", "perturbation", "mixture", "is_init")
 
@@ -301,8 +301,9 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
     data = None
     if meta_path.exists():
         meta = read_dataset_meta(out)
-        # a dataset generated before upright_power existed used the plain reward (1.0)
-        if {"upright_power": 1.0, **meta["config"]} != config:
+        # a field added since the dataset was generated reads as its default (e.g.
+        # upright_power: 1.0, the plain reward every older dataset used)
+        if {**field_defaults(cfg), **meta["config"]} != config:
             raise RunFolderError(f"{out} holds a dataset generated with a different config; "
                              "use another directory or the same settings to resume")
         # Pre-allocated at full size by the first shard: sizes are checked, never extended.

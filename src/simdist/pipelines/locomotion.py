@@ -30,13 +30,12 @@ def locomotion_env(target, episodes: int, steps: int, seed: int, primers=(), tas
     With ``upside_down_termination`` (see :class:`~simdist.envs.quadruped.QuadrupedLocomotion`)
     a world that rolls onto its back ends its episode and starts a new one within the
     same ``steps`` (its row of a :func:`rollout` then holds several episodes).
-    ``upright_power`` is the task reward's exponent of the upright term (passed on when
-    it is not 1).
+    ``upright_power`` is the quadruped reward's exponent of the upright term.
     """
     kwargs = {"speeds": tuple(speeds)}
     if upside_down_termination is not None:
         kwargs["upside_down_termination"] = upside_down_termination
-    if upright_power != 1.0:
+    if upright_power != 1.0:  # a registered robot task's builder need not take it
         kwargs["upright_power"] = float(upright_power)
     env = TransformedEnv(make_env(task, target=target, num_envs=episodes, seed=seed,
                                   max_episode_steps=steps, task_kwargs=kwargs),
