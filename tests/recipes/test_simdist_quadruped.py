@@ -255,6 +255,14 @@ def test_model_dynamics_residual_reaches_the_dynamics_and_a_mismatched_pretraini
     assert load_agent(additive, record).world_model.dynamics.residual == "additive"
 
 
+def test_finetune_consistency_reaches_every_finetuning_loss():
+    from simdist.recipes.simdist_quadruped import Config, new_agent
+    agent = new_agent(Config(model_size="tiny", finetune_consistency="kl"), obs_dim=10,
+                      action_dim=3, dynamics_members=2)
+    assert [loss.consistency for loss in agent.finetune_losses] == ["kl", "kl"]
+    assert new_agent(Config(model_size="tiny"), 10, 3).finetune_loss.consistency == "squared"
+
+
 def test_model_prior_bounds_give_the_prior_the_envs_joint_box_and_survive_save_and_load(
         tmp_path):
     from simdist.agents import SimDistAgent
@@ -370,6 +378,7 @@ def test_planner_flags_reach_the_planner_config():
     (["--finetune-sim-fraction", "0.5", "--finetune-priority-alpha", "1"],
      "cannot be combined with --finetune-priority-alpha"),
     (["--ensemble-shared-encoder"], "ensemble_shared_encoder: needs --ensemble-size > 1"),
+    (["--finetune-consistency", "cosine"], "finetune_consistency: unknown consistency 'cosine'"),
     (["--model-ignored-observations", "toes"], "unknown observation groups ['toes']"),
 ])
 def test_a_bad_value_fails_before_any_work_naming_the_field(tmp_path, flags, message, capsys):

@@ -62,6 +62,9 @@ class SimDistConfig:
     # encoded latents. 0 and 0: the reference's consistency-only finetuning.
     finetune_reward_weight: float = 0.0
     finetune_value_weight: float = 0.0
+    # the finetuning's consistency term (DynamicsFinetuneLoss(consistency=)): "squared"
+    # (the pretraining's term, the reference) or "kl" (each SimNorm group's KL divergence).
+    finetune_consistency: str = "squared"
     # dynamics modules pretrained together on the shared encoder and heads (a dynamics
     # ensemble; SimDistPretrainLoss(extra_dynamics=)). 1: the single model. The extra
     # ones live in ``pretrain_loss.extra_dynamics``; :meth:`SimDistAgent.members` gives
@@ -231,7 +234,8 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         self.finetune_losses = [
             DynamicsFinetuneLoss(member, horizon=config.horizon,
                                  reward_weight=config.finetune_reward_weight,
-                                 value_weight=config.finetune_value_weight)
+                                 value_weight=config.finetune_value_weight,
+                                 consistency=config.finetune_consistency)
             for member in self.members()]
         self.finetune_loss = self.finetune_losses[0]
         self.pretrain_optim = torch.optim.Adam(self.pretrain_loss.trainable_parameters(),

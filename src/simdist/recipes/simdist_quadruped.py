@@ -46,7 +46,7 @@ from simdist.envs import TASKS, Layout, describe_ranges, get_target, make_env
 from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, WorldModelEnsemble
 from simdist.objectives import ProbeLoss
-from simdist.objectives.simdist_pretrain import latent_prediction_skill
+from simdist.objectives.simdist_pretrain import CONSISTENCY_KINDS, latent_prediction_skill
 from simdist.modules.planner import PlannerConfig
 from simdist.modules.simdist_model import DYNAMICS_RESIDUALS
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, episode_stats,
@@ -277,6 +277,12 @@ class Config:
     # predicted vs encoded latents. 0 / 0: consistency alone, the reference's finetuning.
     finetune_reward_weight: float = 0.0
     finetune_value_weight: float = 0.0
+    # the finetuning's consistency term, for both finetuned methods: "squared" (the
+    # pretraining's squared error, the reference) or "kl", each SimNorm group of the
+    # predicted latent against the encoded one as categorical distributions, whose
+    # gradient does not fade where the pretrained dynamics is confidently wrong
+    # (objectives.simdist_pretrain.consistency_error).
+    finetune_consistency: str = field(default="squared", metadata={ABSENT_MEANS: "squared"})
     # prioritised finetuning slices (data/prioritised_slices.py): a slice is drawn with
     # probability ~ (its consistency error under the model being finetuned)^alpha, with
     # importance weights ^beta. 0: uniform slices (TorchRL's SliceSampler), the reference.
@@ -319,6 +325,9 @@ class Config:
         check(self.model_dynamics_residual in DYNAMICS_RESIDUALS, "model_dynamics_residual",
               f"unknown residual {self.model_dynamics_residual!r}; valid: "
               f"{list(DYNAMICS_RESIDUALS)}")
+        check(self.finetune_consistency in CONSISTENCY_KINDS, "finetune_consistency",
+              f"unknown consistency {self.finetune_consistency!r}; valid: "
+              f"{list(CONSISTENCY_KINDS)}")
         for name in ("mixed_precision", "planner_precision"):
             check(getattr(self, name) in PRECISIONS, name,
                   f"unknown precision {getattr(self, name)!r}; valid: {list(PRECISIONS)}")
@@ -532,6 +541,7 @@ def new_agent(cfg: Config, obs_dim: int, action_dim: int, dynamics_members: int 
                                           value_weight=cfg.value_weight,
                                           finetune_reward_weight=cfg.finetune_reward_weight,
                                           finetune_value_weight=cfg.finetune_value_weight,
+                                          finetune_consistency=cfg.finetune_consistency,
                                           dynamics_members=dynamics_members,
                                           mixed_precision=cfg.mixed_precision),
                         planner_config=cfg.planner()).to(cfg.device)
