@@ -17,6 +17,12 @@ stage records the same on its held-out episodes):
   over ``copy`` that comes from reading the actions. The planner ranks candidates only
   through what the model does with actions.
 
+Then, per data set, how the predicted SimNorm groups (5 steps out) sit against the encoded
+ones: the share of groups whose top entry holds > 0.9 / 0.99, the share *confidently
+wrong* (top entry > 0.9 on another entry than the encoded group's top), and the share of
+each finetuning loss's gradient on the logits (summed L2 norms over groups,
+``consistency_error``'s "squared" and "kl") that falls on those confidently wrong groups.
+
     python benchmarks/latent_skill.py --run RUN [--weights RUN/stages/round_2/simdist.pt]
         [--target-data RUN/stages/round_2/data] [--episodes 32] [--horizon 5]
 """
@@ -31,7 +37,8 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
 
 from simdist.data import generate_shard
-from simdist.objectives.simdist_pretrain import latent_prediction_skill
+from simdist.objectives.simdist_pretrain import (consistency_error, latent_prediction_skill,
+                                                rollout_windows)
 from simdist.recipes import simdist_quadruped as recipe
 from simdist.utils import load_memmap
 
@@ -42,6 +49,34 @@ def report(name: str, table: dict[str, list[float]]) -> None:
     for i, (m, c, s) in enumerate(zip(table["model"], table["copy"], table["shuffled"])):
         share = (s - m) / (c - m) if c > m else float("nan")
         print(f"{i + 1:4d} {m:7.3f} {c:7.3f} {s:9.3f} {1 - m / c:6.2f} {share:13.2f}")
+
+
+def group_saturation(world_model, td, horizon: int) -> dict[str, float]:
+    """How confident the predicted SimNorm groups are, how often confidently wrong, and
+    which share of each consistency loss's logit gradient those wrong groups receive."""
+    groups = world_model.dynamics.simnorm_groups
+    B, T = td.batch_size[:2]
+    is_init = td.get("is_init").reshape(B, T).bool()
+    with torch.no_grad():
+        latents = world_model.encode_sequence(td.get("observation"), is_init, td.get("action"))
+        predicted, targets, mask = rollout_windows(world_model, latents, td.get("action"),
+                                                   is_init, horizon)
+    keep = mask[..., -1].bool()                                    # complete windows only
+    p = predicted[..., -1, :][keep].float().unflatten(-1, (groups, -1))
+    q = targets[..., -1, :][keep].float().unflatten(-1, (groups, -1))
+    top = p.max(-1)
+    wrong = (top.values > 0.9) & (top.indices != q.argmax(-1))
+    out = {"top > 0.9": (top.values > 0.9).float().mean().item(),
+           "top > 0.99": (top.values > 0.99).float().mean().item(),
+           "confidently wrong": wrong.float().mean().item()}
+    for kind in ("squared", "kl"):
+        logits = p.clamp_min(1e-30).log().requires_grad_(True)
+        error = consistency_error(torch.softmax(logits, -1).flatten(-2), q.flatten(-2),
+                                  groups, kind)
+        (grad,) = torch.autograd.grad(error.sum(), logits)
+        norms = grad.norm(dim=-1)
+        out[f"{kind} gradient on them"] = (norms[wrong].sum() / norms.sum()).item()
+    return out
 
 
 def main(argv=None) -> None:
@@ -70,6 +105,9 @@ def main(argv=None) -> None:
         for name, td in sets.items():  # the data go where the model lives (--device cuda)
             report(f"{weights or 'pretrained'} on {name}",
                    latent_prediction_skill(agent.world_model, td.to(agent.device), args.horizon))
+            print("SimNorm groups at step", args.horizon, ": " + ", ".join(
+                f"{k} {100 * v:.1f}%" for k, v in group_saturation(
+                    agent.world_model, td.to(agent.device), args.horizon).items()))
 
 
 def read_expert(run: str) -> str:
