@@ -66,7 +66,9 @@ def group_saturation(world_model, td, horizon: int) -> dict[str, float]:
     q = targets[..., -1, :][keep].float().unflatten(-1, (groups, -1))
     top = p.max(-1)
     wrong = (top.values > 0.9) & (top.indices != q.argmax(-1))
-    out = {"top > 0.9": (top.values > 0.9).float().mean().item(),
+    out = {"median top": top.values.median().item(),
+           "top > 0.5": (top.values > 0.5).float().mean().item(),
+           "top > 0.9": (top.values > 0.9).float().mean().item(),
            "top > 0.99": (top.values > 0.99).float().mean().item(),
            "confidently wrong": wrong.float().mean().item()}
     for kind in ("squared", "kl"):
