@@ -22,6 +22,13 @@ pools saved comparisons of several seeds without evaluating anything:
         --against RUN/stages/round_2.json --save-json h60p20_s0.json
     python benchmarks/planner_variants.py --pool h60p20_s0.json=RUN0/stages/round_2.json \
         h60p20_s1.json=RUN1/stages/round_2.json --domains slippery_slope
+
+Several ``--weights`` files plan together as one ensemble (``WorldModelEnsemble``, e.g. two
+finetunings of the same pretrained model), paired with the round that evaluated the first:
+
+    python benchmarks/planner_variants.py --run RUN --domains slippery_slope \
+        --weights RUN/stages/round_2/simdist.pt OTHER/stages/round_2/simdist.pt \
+        --against RUN/stages/round_2.json --save-json ensemble_s0.json
 """
 
 from __future__ import annotations
@@ -138,7 +145,9 @@ def main(argv=None):
                         help="name:field=value,... (PlannerConfig fields); repeatable")
     parser.add_argument("--prior", action="store_true", help="also evaluate the BC prior alone")
     parser.add_argument("--episodes", type=int, default=None, help="default: the run's")
-    parser.add_argument("--weights", default=None, help="world-model weights (default: pretrained)")
+    parser.add_argument("--weights", nargs="+", default=None,
+                        help="world-model weights (default: pretrained); several plan as one "
+                             "ensemble (WorldModelEnsemble, as the recipe's --ensemble-size)")
     parser.add_argument("--calibration", action="store_true",
                         help="also print the planner's predicted reward along its chosen plan "
                              "against the reward the env then paid (see reward_calibration)")
@@ -155,7 +164,7 @@ def main(argv=None):
     against = recipe_evaluation(args.against) if args.against else None
     cfg, pretrained = recipe.load_finished_run(
         run, **({"episodes": args.episodes} if args.episodes else {}))
-    agent = recipe.load_agent(cfg, pretrained, args.weights)
+    agent = recipe.planning_agent(cfg, pretrained, args.weights or [pretrained["path"]])
     variants = [parse_variant(v) for v in (args.variant or ["recipe:"])]
     if args.prior:
         variants = [("prior", None), *variants]
