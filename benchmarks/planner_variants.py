@@ -148,6 +148,9 @@ def main(argv=None):
     parser.add_argument("--weights", nargs="+", default=None,
                         help="world-model weights (default: pretrained); several plan as one "
                              "ensemble (WorldModelEnsemble, as the recipe's --ensemble-size)")
+    parser.add_argument("--planner-seed", type=int, default=None,
+                        help="seed of the planner's sampling (default: the run's, as the "
+                             "recipe's evaluation); the worlds stay the run's")
     parser.add_argument("--calibration", action="store_true",
                         help="also print the planner's predicted reward along its chosen plan "
                              "against the reward the env then paid (see reward_calibration)")
@@ -180,7 +183,8 @@ def main(argv=None):
                                  cfg.seed + 10_000, task=cfg.task,
                                  primers=[agent.make_primer(planner.latency_compensation)])
             spec = env.action_spec
-            policy = agent.policy(spec.space.low[0], spec.space.high[0], planner, seed=cfg.seed)
+            policy = agent.policy(spec.space.low[0], spec.space.high[0], planner,
+                                  seed=cfg.seed if args.planner_seed is None else args.planner_seed)
             if overrides is None:
                 policy = PriorPolicy(policy)
             td = rollout(env, policy, cfg.episode_steps)

@@ -72,7 +72,7 @@ def consistency_error(predicted: torch.Tensor, targets: torch.Tensor,
     ``sum_g KL(z_g || z^_g)`` of each predicted group from the encoded one. Its gradient
     with respect to the prediction's logits is ``z^_g - z_g``, which stays whole where a
     group is confidently wrong; the squared error's passes through the softmax's Jacobian
-    and fades there (a group at 0.999 on the wrong entry moves ~1000x slower).
+    and fades there (a group at 0.9997 on the wrong entry moves ~750x slower).
 
     Examples:
         >>> z = simnorm(torch.tensor([[0.0, 5.0, 0.0, 0.0]]), 1)
@@ -91,9 +91,8 @@ def consistency_error(predicted: torch.Tensor, targets: torch.Tensor,
         raise ValueError("consistency 'kl' compares SimNorm groups as categorical "
                          "distributions: this model's latent has no SimNorm groups")
     tiny = torch.finfo(torch.float32).tiny  # a floor for log(0) only: softmax outputs are > 0
-    grouped = (predicted.float().unflatten(-1, (simnorm_groups, -1)),
-               targets.float().unflatten(-1, (simnorm_groups, -1)))
-    predicted_g, target_g = grouped
+    predicted_g = predicted.float().unflatten(-1, (simnorm_groups, -1))
+    target_g = targets.float().unflatten(-1, (simnorm_groups, -1))
     kl = torch.special.xlogy(target_g, target_g) - target_g * predicted_g.clamp_min(tiny).log()
     return kl.sum((-2, -1))
 
