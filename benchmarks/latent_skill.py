@@ -54,7 +54,7 @@ def report(name: str, table: dict[str, list[float]]) -> None:
 def group_saturation(world_model, td, horizon: int) -> dict[str, float]:
     """How confident the predicted SimNorm groups are, how often confidently wrong, and
     which share of each consistency loss's logit gradient those wrong groups receive."""
-    groups = world_model.dynamics.simnorm_groups
+    groups = world_model.encoder.simnorm_groups
     B, T = td.batch_size[:2]
     is_init = td.get("is_init").reshape(B, T).bool()
     with torch.no_grad():

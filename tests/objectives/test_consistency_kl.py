@@ -75,7 +75,7 @@ def test_kl_loss_equals_hand_computation_and_ranks_slices():
     wm = _model()
     td = linear_system_batch(batch=2, time=5, obs_dim=4)
     out = DynamicsFinetuneLoss(wm, horizon=2, consistency="kl")(td)
-    groups = wm.dynamics.simnorm_groups
+    groups = wm.encoder.simnorm_groups
     z = wm.encode_sequence(td["observation"], td["is_init"].squeeze(-1))
     terms = []
     for t in range(3):
@@ -99,3 +99,21 @@ def test_bad_consistency_is_refused(kwargs, match):
         DynamicsFinetuneLoss(_model(**kwargs), consistency=consistency)
     with pytest.raises(ValueError, match="unknown consistency"):
         consistency_error(torch.zeros(1, 4), torch.zeros(1, 4), 1, "cosine")
+
+
+def test_a_custom_dynamics_without_simnorm_attributes_finetunes_with_either_term():
+    class ScaleDynamics(torch.nn.Module):  # a swappable part: no simnorm_groups of its own
+        action_dim, latent_dim = 2, 16
+
+        def __init__(self):
+            super().__init__()
+            self.scale = torch.nn.Parameter(torch.ones(16))
+
+        def forward(self, z, a):
+            return z * self.scale
+
+    wm = _model(dynamics=ScaleDynamics())
+    td = linear_system_batch(batch=2, time=6, obs_dim=4)
+    for kind in ("squared", "kl"):  # the groups are the encoder's
+        DynamicsFinetuneLoss(wm, horizon=2, consistency=kind)(td)["loss_consistency"].backward()
+        assert wm.dynamics.scale.grad is not None

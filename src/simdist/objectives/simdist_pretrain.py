@@ -63,6 +63,15 @@ def complete_windows(is_init: torch.Tensor, history: int) -> torch.Tensor:
 CONSISTENCY_KINDS = ("squared", "kl")
 
 
+def check_consistency(kind: str, simnorm_groups: int | None) -> None:
+    """Refuses an unknown consistency ``kind``, and ``"kl"`` on a latent without SimNorm."""
+    if kind not in CONSISTENCY_KINDS:
+        raise ValueError(f"unknown consistency {kind!r}; valid: {', '.join(CONSISTENCY_KINDS)}")
+    if kind == "kl" and not simnorm_groups:
+        raise ValueError("consistency 'kl' needs a SimNorm latent (simnorm_groups): it "
+                         "compares each group as a categorical distribution")
+
+
 def consistency_error(predicted: torch.Tensor, targets: torch.Tensor,
                       simnorm_groups: int | None, kind: str = "squared") -> torch.Tensor:
     """Per-prediction consistency error ``[...]`` of latents ``[..., L]`` (targets detached).
@@ -82,14 +91,10 @@ def consistency_error(predicted: torch.Tensor, targets: torch.Tensor,
         ...                                1, "kl")), 4)  # log 2
         0.6931
     """
-    if kind not in CONSISTENCY_KINDS:
-        raise ValueError(f"unknown consistency {kind!r}; valid: {', '.join(CONSISTENCY_KINDS)}")
+    check_consistency(kind, simnorm_groups)
     targets = targets.detach()
     if kind == "squared":
         return (predicted - targets).pow(2).sum(-1)
-    if not simnorm_groups:
-        raise ValueError("consistency 'kl' compares SimNorm groups as categorical "
-                         "distributions: this model's latent has no SimNorm groups")
     tiny = torch.finfo(torch.float32).tiny  # a floor for log(0) only: softmax outputs are > 0
     predicted_g = predicted.float().unflatten(-1, (simnorm_groups, -1))
     target_g = targets.float().unflatten(-1, (simnorm_groups, -1))
@@ -262,12 +267,10 @@ class DynamicsFinetuneLoss(SimdistLoss):
                  reward_weight: float = 0.0, value_weight: float = 0.0,
                  consistency: str = "squared", check_inputs: bool = True):
         super().__init__(check_inputs)
-        if consistency not in CONSISTENCY_KINDS:
-            raise ValueError(f"unknown consistency {consistency!r}; valid: "
-                             f"{', '.join(CONSISTENCY_KINDS)}")
-        if consistency == "kl" and not world_model.dynamics.simnorm_groups:
-            raise ValueError("consistency 'kl' needs a SimNorm latent (simnorm_groups): "
-                             "it compares each group as a categorical distribution")
+        # the latent's SimNorm groups are the encoder's (its outputs are the targets); read
+        # with a default because encoder and dynamics are swappable parts
+        self.simnorm_groups = getattr(world_model.encoder, "simnorm_groups", None)
+        check_consistency(consistency, self.simnorm_groups)
         self.consistency = consistency
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
@@ -300,7 +303,7 @@ class DynamicsFinetuneLoss(SimdistLoss):
         with torch.set_grad_enabled(whole_model):  # frozen: the encoder builds no graph
             latents = wm.encode_sequence(self.read(td, "observation"), is_init, action)
         predicted, targets, mask = rollout_windows(wm, latents, action, is_init, H)
-        error = consistency_error(predicted, targets, wm.dynamics.simnorm_groups,
+        error = consistency_error(predicted, targets, self.simnorm_groups,
                                   self.consistency)                             # [B, S, H]
         with torch.no_grad():
             slice_error = (error * mask).sum((1, 2)) / mask.sum((1, 2)).clamp_min(1.0)
