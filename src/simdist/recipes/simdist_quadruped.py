@@ -136,8 +136,8 @@ class Config:
     # applies whatever --model-size says (0 keeps that size's own). A folder from before
     # the field was made with the size's own latent. 256 on today's default (logit residual,
     # previous action): 8 minutes 53% [46, 59] against 46% [39, 52], paired +7 [0, 13] (+7
-    # on every seed), foam +7 [4, 11] (two seeds), at 1.19x the pretraining and 1.38x each
-    # planner call ("A 256-dimensional latent on today's default").
+    # on every seed), foam +7 [4, 11] (two seeds), but 33 minutes end to end on 2 Intel
+    # cores, over the 30-minute budget ("A 256-dimensional latent on today's default").
     model_latent_dim: int = field(default=128, metadata={ABSENT_MEANS: 0})
     # the encoder also reads the action sent one step before each observation of its window
     # (HistoryEncoder(action_dim=)): with actuation latency (0-1 steps in the training
