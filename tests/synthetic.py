@@ -42,3 +42,16 @@ def linear_system_batch(batch=16, time=12, obs_dim=4, action_dim=2, seed=0, boun
         "next": {"observation": next_obs, "state": next_obs, "reward": reward,
                  "terminated": torch.zeros(batch, time, 1, dtype=torch.bool)},
     }, [batch, time])
+
+
+class ScaleDynamics(torch.nn.Module):
+    """A custom (swappable) dynamics ``z' = z * scale``: none of ``MLPDynamics``'
+    attributes beyond ``action_dim`` and ``latent_dim`` (no ``simnorm_groups``)."""
+
+    def __init__(self, action_dim: int, latent_dim: int = 16):
+        super().__init__()
+        self.action_dim, self.latent_dim = action_dim, latent_dim
+        self.scale = torch.nn.Parameter(torch.ones(latent_dim))
+
+    def forward(self, z, a):
+        return z * self.scale

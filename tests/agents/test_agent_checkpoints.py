@@ -10,6 +10,7 @@ from simdist.agents import (DreamerAgent, DreamerConfig, SimDistAgent, SimDistCo
 from simdist.agents import checkpoint as fmt
 from simdist.modules import DreamerWorldModel, PlannerConfig, SimDistWorldModel
 from simdist.utils import CorruptCheckpointError
+from tests.synthetic import ScaleDynamics
 
 PLANNER = PlannerConfig(horizon=2, num_samples=8, num_elites=2, iterations=1)
 
@@ -150,17 +151,7 @@ def test_meta_that_is_not_plain_data_is_refused_before_writing(tmp_path):
 
 
 def test_custom_dynamics_is_refused_when_saving(tmp_path):
-    class MyDynamics(torch.nn.Module):
-        action_dim, latent_dim = 3, 16
-
-        def __init__(self):
-            super().__init__()
-            self.scale = torch.nn.Parameter(torch.ones(16))
-
-        def forward(self, z, a):
-            return z * self.scale
-
-    wm = SimDistWorldModel.build(10, 3, size="tiny", dynamics=MyDynamics())
+    wm = SimDistWorldModel.build(10, 3, size="tiny", dynamics=ScaleDynamics(action_dim=3))
     with pytest.raises(TypeError, match="MLPDynamics only"):
         SimDistAgent(wm).save(tmp_path / "x.pt")
     assert not (tmp_path / "x.pt").exists()

@@ -10,7 +10,7 @@ from simdist.modules import SimDistWorldModel
 from simdist.modules.encoders import simnorm
 from simdist.objectives import DynamicsFinetuneLoss
 from simdist.objectives.simdist_pretrain import consistency_error
-from tests.synthetic import linear_system_batch
+from tests.synthetic import ScaleDynamics, linear_system_batch
 
 
 def _model(seed=0, **overrides):
@@ -102,17 +102,7 @@ def test_bad_consistency_is_refused(kwargs, match):
 
 
 def test_a_custom_dynamics_without_simnorm_attributes_finetunes_with_either_term():
-    class ScaleDynamics(torch.nn.Module):  # a swappable part: no simnorm_groups of its own
-        action_dim, latent_dim = 2, 16
-
-        def __init__(self):
-            super().__init__()
-            self.scale = torch.nn.Parameter(torch.ones(16))
-
-        def forward(self, z, a):
-            return z * self.scale
-
-    wm = _model(dynamics=ScaleDynamics())
+    wm = _model(dynamics=ScaleDynamics(action_dim=2))  # no simnorm_groups of its own
     td = linear_system_batch(batch=2, time=6, obs_dim=4)
     for kind in ("squared", "kl"):  # the groups are the encoder's
         DynamicsFinetuneLoss(wm, horizon=2, consistency=kind)(td)["loss_consistency"].backward()
