@@ -21,6 +21,23 @@ def test_simnorm_groups_are_distributions():
     assert (z >= 0).all()
 
 
+@pytest.mark.parametrize("lanes", [0, 16])  # the direct softmax, and the AVX512 short-group path
+def test_simnorm_matches_a_softmax_per_group_in_value_and_gradient(monkeypatch, lanes):
+    monkeypatch.setattr("simdist.modules.encoders._SHORT_GROUP_LANES", lanes)
+    torch.manual_seed(0)
+    z = (3 * torch.randn(2, 5, 64)).requires_grad_()
+    weights = torch.randn(2, 5, 64)
+    expected = torch.softmax(z.detach().reshape(2, 5, 8, 8), -1).reshape(2, 5, 64)
+    out = simnorm(z, groups=8)
+    torch.testing.assert_close(out, expected, atol=1e-6, rtol=0)
+    (out * weights).sum().backward()
+    reference = z.detach().clone().requires_grad_()
+    (torch.softmax(reference.reshape(2, 5, 8, 8), -1).reshape(2, 5, 64) * weights).sum().backward()
+    torch.testing.assert_close(z.grad, reference.grad, atol=1e-6, rtol=0)
+    half = simnorm(z.detach().bfloat16(), groups=8)  # promoted: the latent stays float32
+    assert half.dtype == torch.float32
+
+
 def test_encoders_reject_wrong_shapes_and_nan():
     with pytest.raises(ValueError, match="'pixels' must end with shape \\(64, 64, 3\\)"):
         PixelEncoder(depth=4)(torch.zeros(2, 32, 32, 3, dtype=torch.uint8))
