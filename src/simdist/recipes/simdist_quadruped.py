@@ -129,16 +129,16 @@ class Config:
     # candidate: 1024 instead of 512 costs ~1.5x the planner time (bfloat16, one thread).
     model_dynamics_hidden: int = 0
     # latent size (0: the size's own, 64; the SimDist reference: 64, TD-MPC2: 512). SimNorm
-    # keeps groups of 8 (TD-MPC2's simnorm_dim), so it must be a multiple of 8. 128 over 64:
-    # slippery_slope after 8 minutes 46% [38, 52] against 34% [26, 41], paired +12 [3, 21]
-    # (every seed higher), zero-shot +10 [0, 19], 2 minutes -2 [-14, 8]; three seeds
-    # (benchmarks/README.md, "More capacity where the model is finetuned"). The value
-    # applies whatever --model-size says (0 keeps that size's own). A folder from before
-    # the field was made with the size's own latent. 256 on today's default (logit residual,
-    # previous action): 8 minutes 53% [46, 59] against 46% [39, 52], paired +7 [0, 13] (+7
-    # on every seed), foam +7 [4, 11] (two seeds), but 33 minutes end to end on 2 Intel
-    # cores, over the 30-minute budget ("A 256-dimensional latent on today's default").
-    model_latent_dim: int = field(default=128, metadata={ABSENT_MEANS: 0})
+    # keeps groups of 8 (TD-MPC2's simnorm_dim), so it must be a multiple of 8. 256, the
+    # default since 2026-12-05: slippery_slope after 8 minutes 53% [46, 59] against 46%
+    # [39, 52] with 128, paired +7 [0, 13] (+7 on every seed), foam +7 [4, 11] (two seeds),
+    # weak_motors -1 [-7, 5] (three seeds), laggy -3 [-9, 3] (two seeds); 28 min 40 s end to
+    # end on 2 Intel cores ("A 256-dimensional latent on today's default"). 128 over 64
+    # (2026-11-27): slippery_slope 8 minutes +12 [3, 21], every seed higher ("More capacity
+    # where the model is finetuned"). The value applies whatever --model-size says (0
+    # keeps that size's own). A folder from before the field was made with the size's own
+    # latent; one made before 2026-12-05 resumes with --model-latent-dim 128.
+    model_latent_dim: int = field(default=256, metadata={ABSENT_MEANS: 0})
     # the encoder also reads the action sent one step before each observation of its window
     # (HistoryEncoder(action_dim=)): with actuation latency (0-1 steps in the training
     # randomisation, 3 in `laggy`) the commands still in flight decide the next states,
