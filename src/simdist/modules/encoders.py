@@ -334,7 +334,7 @@ class HistoryEncoder(nn.Module):
 
 # float32 lanes of one vector register of the CPU kernels torch dispatches to, where
 # measured. On AVX512 cores torch's softmax over a last dimension shorter than that (a
-# SimNorm group of 8) runs ~4x slower per element than over 16, and was a third of the
+# SimNorm group of 8) runs ~15x slower per element than over 16, and was a third of the
 # recipe's planner time (benchmarks/simnorm_softmax.py); AVX2 and other CPUs are not
 # measured and keep the direct call.
 _SHORT_GROUP_LANES = {"AVX512": 16}.get(torch.backends.cpu.get_cpu_capability(), 0)
