@@ -8,9 +8,10 @@ same softmax taken along a non-last dimension, so ``simnorm`` takes the latter t
 
 1. the operation alone (forward, and forward + backward) at the planner's and the
    pretraining's shapes, the direct call against the one ``simnorm`` makes;
-2. the recipe's planner (H20 x 64 x 3, 8 elites, 90% prior proposals, 32 worlds) on a
-   ``wide`` world model, per latent size, with ``simnorm``'s short-group path off and on;
-3. one pretraining update of the recipe's model (32 slices of 16 steps), off and on.
+2. the recipe's default model and planner (``Config`` / ``new_agent`` of
+   recipes/simdist_quadruped.py: H20 x 64 x 3, 90% prior proposals) planning for 32
+   worlds, per latent size, with ``simnorm``'s short-group path off and on;
+3. one pretraining update of that model (32 slices of 16 steps), off and on.
 
 Usage:
     python benchmarks/simnorm_softmax.py --threads 1
@@ -20,26 +21,15 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
 import torch
 from tensordict import TensorDict
 
-import simdist  # noqa: F401
-from simdist.agents import SimDistAgent, SimDistConfig
-from simdist.modules import SimDistWorldModel, encoders
-from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
+from planner_latency import latency_ms  # benchmarks/ (the script's folder is on sys.path)
+from simdist_pretrain_precision import make_batch
 
-
-def median_ms(fn, calls: int) -> float:
-    fn()
-    times = []
-    for _ in range(calls):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return 1e3 * statistics.median(times)
+from simdist.modules import encoders
+from simdist.recipes.simdist_quadruped import Config, new_agent
 
 
 def direct(z: torch.Tensor) -> torch.Tensor:
@@ -56,9 +46,9 @@ def op_row(rows: int, latent: int, calls: int) -> str:
     weights = torch.randn(rows, latent)
     out = []
     for fn in (direct, along_non_last):
-        forward = median_ms(lambda: fn(z), calls)
+        forward = latency_ms(lambda: fn(z), calls)
         x = z.clone().requires_grad_()
-        both = median_ms(lambda: (fn(x) * weights).sum().backward(), calls)
+        both = latency_ms(lambda: (fn(x) * weights).sum().backward(), calls)
         out.append((forward, both))
     (f0, b0), (f1, b1) = out
     return (f"{rows:6d} x {latent:4d} {f0:9.2f} {f1:9.2f} {f0 / f1:6.1f}x "
@@ -74,32 +64,25 @@ def with_lanes(lanes: int, fn):
         encoders._SHORT_GROUP_LANES = saved
 
 
-def build(latent: int) -> SimDistWorldModel:
+def recipe_agent(latent: int, precision: str):
+    """The recipe's default agent (model and planner) with this latent and precision."""
     torch.manual_seed(0)
-    return SimDistWorldModel.build(obs_dim=89, action_dim=12, size="wide", latent_dim=latent,
-                                   simnorm_groups=latent // 8, dynamics_residual="logit",
-                                   previous_action=True)
+    cfg = Config(model_latent_dim=latent, mixed_precision=precision,
+                 planner_precision=precision)
+    return new_agent(cfg, obs_dim=89, action_dim=12), cfg.planner()
 
 
 def planner_ms(latent: int, precision: str, calls: int) -> float:
-    cfg = PlannerConfig(horizon=20, num_samples=64, iterations=3, num_elites=8,
-                        policy_fraction=0.9, policy_noise=0.3, precision=precision)
-    planner = LatentMPPIPlanner.from_world_model(build(latent).eval(), cfg, seed=0)
+    agent, planner_config = recipe_agent(latent, precision)
+    planner = agent.policy(-torch.ones(12), torch.ones(12), planner_config, seed=0)
     td = TensorDict({"latent": torch.rand(32, latent)}, [32])
-    return median_ms(lambda: planner(td.clone()), calls)
+    return latency_ms(lambda: planner.planner(td.clone()), calls)
 
 
 def update_ms(latent: int, precision: str, calls: int) -> float:
-    agent = SimDistAgent(build(latent), SimDistConfig(size="wide", mixed_precision=precision))
-    batch = TensorDict({
-        "observation": torch.randn(32, 16, 89),
-        "action": torch.rand(32, 16, 12) * 2 - 1,
-        "is_init": torch.zeros(32, 16, 1, dtype=torch.bool),
-        "expert_active": torch.ones(32, 16, 1, dtype=torch.bool),
-        "next": {"reward": torch.rand(32, 16, 1)},
-        "value_target": torch.rand(32, 16, 1) * 50,
-    }, [32, 16])
-    return median_ms(lambda: agent.pretrain_update(batch), calls)
+    agent, _ = recipe_agent(latent, precision)
+    batch = make_batch(32, 16, 89, 12)
+    return latency_ms(lambda: agent.pretrain_update(batch), calls)
 
 
 def main():
