@@ -9,6 +9,14 @@ budget (mean [bootstrap 95% CI of the per-episode differences]) and the first ru
 gain over its zero-shot point; it refuses runs whose episodes are not the same worlds
 (other seeds or targets, different episode counts or commanded speeds).
 
+With several seeds it also prints each seed's difference and the interval over seeds
+(the seeds resampled, their episodes travelling with them). Two runs that each pretrained
+anew differ by more than their episodes: the same seed and flags land 10-25 points apart
+from a pretraining's small numerical differences alone (benchmarks/README.md, "Run to
+run"), and the per-episode interval keeps the seeds fixed, so it cannot see that. Read a
+claim about a flag from the seed-level line; three seeds allow only ten seed multisets,
+so that interval is coarse: state the seed count beside it.
+
     python benchmarks/compare_runs.py --run results/simdist_residual_logit_3seeds_2026-12-03 \\
         --against results/simdist_residual_additive_3seeds_2026-12-03 --names logit additive
 """
@@ -19,7 +27,10 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from simdist.pipelines.report import format_paired_differences, format_table
+from simdist.pipelines.statistics import interval_over_seeds
 from simdist.recipes.simdist_quadruped import SIMDIST
 
 
@@ -41,6 +52,44 @@ def paired_curves(first: dict, second: dict, method: str, names: tuple[str, str]
     if first["minutes"] != second["minutes"]:
         raise SystemExit(f"the runs' budgets differ: {first['minutes']} vs {second['minutes']}")
     return {"minutes": first["minutes"], names[0]: first[method], names[1]: second[method]}
+
+
+def seed_differences(curves: dict, names: tuple[str, str]) -> list[dict] | None:
+    """Per budget: each seed's mean difference (first minus second, points of the commanded
+    distance) and the cluster-bootstrap interval over seeds; ``None`` for a single seed
+    or points without per-seed episode counts.
+
+    Examples:
+        >>> p = lambda f: {"fraction": f, "seed_episodes": [2, 2, 2]}
+        >>> c = {"minutes": [8.0], "A": [p([.5, .7, .4, .4, .9, .7])],
+        ...      "B": [p([.4, .6, .4, .4, .6, .6])]}
+        >>> row = seed_differences(c, ("A", "B"))[0]
+        >>> [round(d) for d in row["seeds"]], row["low"] <= row["mean"] <= row["high"]
+        ([10, 0, 20], True)
+    """
+    rows = []
+    for first, second in zip(curves[names[0]], curves[names[1]]):
+        sizes = first.get("seed_episodes")
+        if (not sizes or len(sizes) < 2 or sizes != second.get("seed_episodes")
+                or sum(sizes) != len(first["fraction"])):
+            return None
+        diff = 100 * (np.asarray(first["fraction"]) - np.asarray(second["fraction"]))
+        groups = np.split(diff, np.cumsum(sizes)[:-1])
+        low, high = interval_over_seeds(groups)
+        rows.append({"seeds": [float(g.mean()) for g in groups], "mean": float(diff.mean()),
+                     "low": low, "high": high})
+    return rows
+
+
+def format_seed_differences(rows: list[dict], minutes: list[float], names) -> str:
+    """The lines :func:`main` prints for :func:`seed_differences`."""
+    lines = [f"{names[0]} minus {names[1]} by seed (points; mean [95% interval over seeds, "
+             f"{len(rows[0]['seeds'])} seeds])"]
+    for m, row in zip(minutes, rows):
+        per_seed = " / ".join(f"{d:+.0f}" for d in row["seeds"])
+        lines.append(f"  {m:5.2f} min: {per_seed}; {row['mean']:+.0f} "
+                     f"[{row['low']:+.0f}, {row['high']:+.0f}]")
+    return "\n".join(lines)
 
 
 def read_run(run: Path) -> dict:
@@ -75,6 +124,9 @@ def main(argv=None):
         raise SystemExit("the runs' episodes are not the same worlds (episode counts or "
                          "commanded speeds differ): they cannot be paired")
     print("\n" + paired)
+    by_seed = seed_differences(curves, tuple(args.names))
+    if by_seed is not None:
+        print("\n" + format_seed_differences(by_seed, curves["minutes"], args.names))
 
 
 if __name__ == "__main__":

@@ -45,8 +45,29 @@ def test_compare_runs_pairs_the_residual_records_by_episode(capsys):
     main(["--run", str(logit), "--against", str(additive), "--names", "logit", "additive"])
     rows = capsys.readouterr().out.splitlines()
     # README Results: logit minus additive +19 / +19 / +23 points at 0 / 2 / 8 minutes
-    assert rows[-1].split()[:4] == ["additive", "+19", "[", "+10,"]
-    assert "+23 [  +14,   +32]" in rows[-1]
+    paired = [row for row in rows if row.startswith("additive ")][-1]  # after the table's
+    assert paired.split()[:4] == ["additive", "+19", "[", "+10,"]
+    assert "+23 [  +14,   +32]" in paired
+    # ...and by seed (README: every seed higher at 8 minutes, "+45 / +16 / +7", there
+    # differences of rounded seed means), the interval over seeds spanning the seeds' means
+    assert rows[-4].startswith("logit minus additive by seed")
+    assert rows[-1].split() == ["8.00", "min:", "+44", "/", "+16", "/", "+7;", "+23",
+                                "[+7,", "+44]"]
+
+
+def test_compare_runs_seed_differences_match_hand_computed_means():
+    from tests.in_process import benchmark_module
+    seed_differences = benchmark_module("compare_runs").seed_differences
+    point = lambda f: {"fraction": f, "seed_episodes": [2, 2, 2]}  # noqa: E731
+    curves = {"minutes": [8.0], "A": [point([.5, .7, .4, .4, .9, .7])],
+              "B": [point([.4, .6, .4, .4, .6, .6])]}
+    row = seed_differences(curves, ("A", "B"))[0]
+    assert row["seeds"] == pytest.approx([10.0, 0.0, 20.0])
+    assert row["mean"] == pytest.approx(10.0)
+    # three seeds: the cluster bootstrap's extremes are all-seed-1 and all-seed-2 draws
+    assert 0.0 <= row["low"] <= row["mean"] <= row["high"] <= 20.0
+    one_seed = {"minutes": [8.0], "A": [{"fraction": [.5, .7]}], "B": [{"fraction": [.4, .6]}]}
+    assert seed_differences(one_seed, ("A", "B")) is None
 
 
 def test_compare_runs_refuses_runs_of_other_worlds():
