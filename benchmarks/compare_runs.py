@@ -11,10 +11,11 @@ gain over its zero-shot point; it refuses runs whose episodes are not the same w
 
 With several seeds it also prints each seed's difference and the interval over seeds
 (the seeds resampled, their episodes travelling with them). Two runs that each pretrained
-anew differ by more than their episodes: the same seed and flags land 10-25 points apart
-from a pretraining's small numerical differences alone (benchmarks/README.md, "Run to
-run"), and the per-episode interval keeps the seeds fixed, so it cannot see that. Read a
-claim about a flag from the seed-level line; three seeds allow only ten seed multisets,
+anew differ by more than their episodes: a pretraining's small numerical differences alone
+move one seed's figure by ten points or more (the default's seed 0 at 8 minutes: 53% with
+one torch thread, 66% with two and the faster SimNorm kernel; README, Recipe section and
+Results), and the per-episode interval keeps the seeds fixed, so it cannot see that. Read
+a claim about a flag from the seed-level line; three seeds allow only ten seed multisets,
 so that interval is coarse: state the seed count beside it.
 
     python benchmarks/compare_runs.py --run results/simdist_residual_logit_3seeds_2026-12-03 \\
