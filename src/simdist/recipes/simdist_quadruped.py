@@ -159,7 +159,10 @@ class Config:
     # the policy prior's output box: False, tanh in [-1, 1] (every model until 2026-12-03);
     # True, the data task's per-joint action bounds (PolicyPrior(action_low=, action_high=)):
     # the quadruped's lift joints allow up to 1.1 and the expert's unperturbed actions
-    # exceed 1.0 there on 7-13% of steps, which a [-1, 1] prior cannot imitate.
+    # exceed 1.0 there on 7-13% of steps, which a [-1, 1] prior cannot imitate. Measured
+    # (three seeds, latent 256): it fits those steps with a third of the error, yet plans
+    # level: slippery_slope 8 minutes +2 [-5, 9], laggy +4 [-1, 8] (benchmarks/README.md,
+    # "A policy prior that reaches the lift joints' 1.1"), so it stays off.
     model_prior_bounds: bool = False
     # precision of the world model's training updates: "none" (float32), "bfloat16"
     # (autocast forward pass, float32 weights and latents; SimDistConfig.mixed_precision)
