@@ -48,8 +48,8 @@ def test_compare_runs_pairs_the_residual_records_by_episode(capsys):
     paired = [row for row in rows if row.startswith("additive ")][-1]  # after the table's
     assert paired.split()[:4] == ["additive", "+19", "[", "+10,"]
     assert "+23 [  +14,   +32]" in paired
-    # ...and by seed (README: every seed higher at 8 minutes, "+45 / +16 / +7", there
-    # differences of rounded seed means), the interval over seeds spanning the seeds' means
+    # ...and by seed (README: every seed higher at 8 minutes, +44 / +16 / +7), the interval
+    # over seeds spanning the seeds' means
     assert rows[-4].startswith("logit minus additive by seed")
     assert rows[-1].split() == ["8.00", "min:", "+44", "/", "+16", "/", "+7;", "+23",
                                 "[+7,", "+44]"]
