@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from simdist.pipelines.report import format_paired_differences, format_table
-from simdist.pipelines.statistics import interval_over_seeds
+from simdist.pipelines.statistics import summarise_groups
 from simdist.recipes.simdist_quadruped import SIMDIST
 
 
@@ -75,10 +75,9 @@ def seed_differences(curves: dict, names: tuple[str, str]) -> list[dict] | None:
                 or sum(sizes) != len(first["fraction"])):
             return None
         diff = 100 * (np.asarray(first["fraction"]) - np.asarray(second["fraction"]))
-        groups = np.split(diff, np.cumsum(sizes)[:-1])
-        low, high = interval_over_seeds(groups)
-        rows.append({"seeds": [float(g.mean()) for g in groups], "mean": float(diff.mean()),
-                     "low": low, "high": high})
+        s = summarise_groups(np.split(diff, np.cumsum(sizes)[:-1]))
+        rows.append({"seeds": s["group_means"], "mean": s["mean"],
+                     "low": s["ci_seeds_low"], "high": s["ci_seeds_high"]})
     return rows
 
 

@@ -35,7 +35,7 @@ def prior_fit(run: Path, every: int) -> dict:
         prior = wm.policy(z.reshape(-1, z.shape[-1])).reshape(*z.shape[:2], -1)
     action = td["action"].float()
     mask = td["expert_active"].reshape(td.shape).clone()
-    mask[:, :10] = False  # the encoder's first steps read a history padded at the start
+    mask[:, :wm.encoder.history] = False  # the encoder's window is still filling there
     env = make_env(cfg.data_task)
     high = action_bounds(env.action_spec)[1]
     env.close()

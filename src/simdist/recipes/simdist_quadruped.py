@@ -133,8 +133,8 @@ class Config:
     # default since 2026-12-05: slippery_slope after 8 minutes 53% [46, 59] against 46%
     # [39, 52] with 128, paired +7 [0, 13] (+7 on every seed), foam +7 [4, 9], weak_motors
     # -1 [-7, 5], laggy -6 [-11, -2] (three seeds each, per episode; by seed +7 / -13 / -13:
-    # a cost on two of three pretrainings); 28 min 40 s end to
-    # end on 2 Intel cores ("A 256-dimensional latent on today's default"). 128 over 64
+    # a cost on two of three pretrainings); 28 min 40 s end to end on 2 Intel cores ("A
+    # 256-dimensional latent on today's default"). 128 over 64
     # (2026-11-27): slippery_slope 8 minutes +12 [3, 21], every seed higher ("More capacity
     # where the model is finetuned"). The value applies whatever --model-size says (0
     # keeps that size's own). A folder from before the field was made with the size's own
