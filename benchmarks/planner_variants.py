@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import re
 import time
 from pathlib import Path
 
@@ -51,7 +52,8 @@ from simdist.utils import read_json
 def parse_variant(text: str) -> tuple[str, dict]:
     name, _, fields = text.partition(":")
     overrides = {}
-    for item in filter(None, fields.split(",")):
+    # commas inside a JSON list ("proposal_commands=[0.25,0.5]") do not split fields
+    for item in filter(None, re.split(r",(?![^\[]*\])", fields)):
         key, _, value = item.partition("=")
         overrides[key.strip()] = json.loads(value)
     return name, overrides

@@ -260,3 +260,29 @@ def test_previous_action_latents_match_training_with_staggered_resets_and_action
     with torch.no_grad():
         offline = wm.encode_sequence(obs, is_init, torch.stack(actions, 1))
     torch.testing.assert_close(torch.stack(latents, 1), offline)
+
+
+def test_command_latents_encode_the_history_under_each_proposal_command():
+    agent = SimDistAgent(SimDistWorldModel.build(5, 2, size="tiny", history=3,
+                                                 previous_action=True))
+    planner = PlannerConfig(horizon=2, num_samples=6, num_elites=2, iterations=1,
+                            policy_fraction=0.5, proposal_commands=(0.25, 0.75))
+    policy = agent.policy(config=planner)  # the command is the observation's last entry
+    seen = []
+    policy.planner.register_forward_pre_hook(lambda m, args: seen.append(args[0].clone()))
+    obs = torch.randn(2, 5)
+    previous = torch.randn(2, 2)
+    policy(TensorDict({"observation": obs, "is_init": torch.ones(2, 1, dtype=torch.bool),
+                       "simdist": {"previous_action": previous}}, [2]))
+    other = seen[0]["proposal_latent"]
+    assert other.shape == (2, 2, agent.world_model.latent_dim)
+    for i, command in enumerate((0.25, 0.75)):
+        # what the policy would encode had the observation said this command
+        edited = obs.clone()
+        edited[:, -1] = command
+        direct = policy(TensorDict({"observation": edited,
+                                    "is_init": torch.ones(2, 1, dtype=torch.bool),
+                                    "simdist": {"previous_action": previous}}, [2]))
+        torch.testing.assert_close(other[:, i], direct["planner", "latent"])
+    with pytest.raises(ValueError, match="command_index"):
+        agent.policy(config=planner, command_index=5)

@@ -383,3 +383,57 @@ def test_bfloat16_planning_runs_the_terminal_value_in_float32():
     assert set(seen["value"]) == {torch.float32} and set(seen["reward"]) == {torch.bfloat16}
     for hook in hooks:
         hook.remove()
+
+
+def _command_world():
+    """Latent ``[position, command]``: the prior walks the way the command's sign says,
+    the reward pays forward position whatever the latent's command entry."""
+    dynamics = lambda z, a: torch.cat([z[:, :1] + 0.1 * a, z[:, 1:]], -1)  # noqa: E731
+    reward = lambda z, a: z[:, :1]  # noqa: E731
+    prior = lambda z: torch.sign(z[:, 1:])  # noqa: E731
+    config = PlannerConfig(horizon=3, num_samples=10, num_elites=4, iterations=1,
+                           policy_fraction=0.9, policy_noise=0.0, warm_start=False)
+    return LatentMPPIPlanner(dynamics, reward, None, action_dim=1, config=config,
+                             policy=prior, seed=0)
+
+
+def test_proposals_from_other_latents_are_scored_from_the_own_latent():
+    planner = _command_world()
+    own = torch.tensor([[0.0, -1.0]])  # this command's prior walks backwards
+    other = torch.tensor([[[0.0, 1.0], [0.0, -1.0]]])  # [B, C, L]: one forwards, one back
+    out = _plan(planner, own, proposal_latent=other)
+    elites = out["planner", "elite_actions"][0]
+    # 9 proposals in 3 groups (own, forward, back): the 3 forward ones are all +1 ...
+    assert (elites[:3] == 1).all() and out["action"][0, 0] > 0
+    # ... and are scored from the own latent: rewards z_t[0] = 0, 0.1, 0.2 along +1
+    torch.testing.assert_close(out["planner", "rewards"][0], torch.tensor([0.0, 0.1, 0.2]))
+    without = _plan(_command_world(), own)
+    assert (without["planner", "elite_actions"][0, :3] != 1).any()
+
+
+def test_proposal_latents_equal_to_the_own_latent_change_nothing_but_the_noise_groups():
+    torch.manual_seed(0)
+    model = SimDistWorldModel.build(6, 2, size="tiny", history=1)
+    config = PlannerConfig(horizon=4, num_samples=12, num_elites=3, iterations=2,
+                           policy_fraction=0.5, policy_noise=0.0)
+    latent = model.encode(torch.randn(3, 1, 6))
+    plans = [_plan(LatentMPPIPlanner.from_world_model(model, config, seed=0), latent, **extra)
+             for extra in ({}, {"proposal_latent": latent[:, None].repeat(1, 2, 1)})]
+    # without noise on the prior, the same latent proposes the same sequence in any group
+    torch.testing.assert_close(plans[0]["action"], plans[1]["action"])
+
+
+@pytest.mark.parametrize("other, message", [
+    (torch.zeros(2, 3, 5), r"must be \[B, C, L\]"),
+    (torch.zeros(2, 2), r"must be \[B, C, L\]"),  # no C
+    (torch.full((2, 1, 2), float("nan")), "NaN or inf"),
+])
+def test_bad_proposal_latents_fail_at_the_boundary(other, message):
+    with pytest.raises(ValueError, match=message):
+        _plan(_command_world(), torch.zeros(2, 2), proposal_latent=other)
+
+
+def test_proposal_commands_are_checked_and_kept_as_a_tuple():
+    assert PlannerConfig(proposal_commands=[0.25, 1]).proposal_commands == (0.25, 1.0)
+    with pytest.raises(ValueError, match="proposal_commands"):
+        PlannerConfig(proposal_commands=(0.5, float("inf")))

@@ -112,10 +112,18 @@ class SimDistPolicy(TensorDictModuleBase):
     """
 
     def __init__(self, world_model: SimDistWorldModel, planner: LatentMPPIPlanner,
-                 obs_key="observation", latency_compensation: int = 0):
+                 obs_key="observation", latency_compensation: int = 0,
+                 command_index: int = -1):
         super().__init__()
         self.world_model, self.planner, self.obs_key = world_model, planner, obs_key
         self.latency_compensation = int(latency_compensation)
+        # where the observation holds the command (the quadruped's layouts put it last);
+        # read only with PlannerConfig.proposal_commands
+        obs_dim = world_model.encoder.obs_dim
+        if not -obs_dim <= command_index < obs_dim:
+            raise ValueError(f"command_index {command_index} is outside the observation "
+                             f"({obs_dim} entries)")
+        self.command_index = command_index % obs_dim
         self.in_keys = [obs_key, "is_init", ("simdist", "history")]
         self.out_keys = ["action", ("next", "simdist", "history"), ("planner", "latent"),
                          ("planner", "mean"), ("planner", "rewards"), ("planner", "value")]
@@ -137,6 +145,21 @@ class SimDistPolicy(TensorDictModuleBase):
         # an episode starts with nothing in flight (the simulator's delay line holds zeros)
         pending = torch.where(is_init.reshape(-1, 1, 1), torch.zeros_like(pending), pending)
         return self.world_model.rollout(latent, pending)[..., -1, :], pending
+
+    def _command_latents(self, td, history, commands, is_init, device) -> torch.Tensor:
+        """``[N, C, L]``: the history encoded once per command of ``commands`` (its command
+        entry replaced at every step of the window), rolled through the actions in flight
+        like the episode's own latent."""
+        windows = history.reshape(-1, *history.shape[-2:])
+        n, c = windows.shape[0], len(commands)
+        windows = windows[:, None].repeat(1, c, 1, 1)
+        windows[..., self.command_index] = torch.tensor(
+            commands, dtype=windows.dtype, device=device)[:, None]
+        latents = self.world_model.encode(windows)  # [N, C, L]
+        if self.latency_compensation:
+            latents = torch.stack([self._in_flight(td, latents[:, i], is_init, device)[0]
+                                   for i in range(c)], 1)
+        return latents
 
     @staticmethod
     def replace_action(td: TensorDictBase, action: torch.Tensor) -> TensorDictBase:
@@ -187,8 +210,13 @@ class SimDistPolicy(TensorDictModuleBase):
         start = latent
         if self.latency_compensation:
             start, pending = self._in_flight(td, latent, is_init, device)
-        plan = self.planner(TensorDict({"latent": start,
-                                        "is_init": is_init.reshape(-1, 1)}, [latent.shape[0]]))
+        inputs = TensorDict({"latent": start, "is_init": is_init.reshape(-1, 1)},
+                            [latent.shape[0]])
+        commands = self.planner.config.proposal_commands
+        if commands and self.planner.config.num_policy:
+            inputs["proposal_latent"] = self._command_latents(td, history, commands, is_init,
+                                                              device)
+        plan = self.planner(inputs)
         if self.latency_compensation:
             sent = torch.cat([pending[:, 1:], plan["action"][:, None]], 1)
             td.set(("next", *PENDING), sent.reshape(*batch, *sent.shape[1:]).to(home))
@@ -329,7 +357,8 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         return sum(errors) / len(errors)
 
     def policy(self, action_low=None, action_high=None, config: PlannerConfig | None = None,
-               seed: int = 0, compile: bool = False, *, action_spec=None) -> SimDistPolicy:
+               seed: int = 0, compile: bool = False, *, action_spec=None,
+               command_index: int = -1) -> SimDistPolicy:
         """A planning policy over this world model within the env's action bounds.
 
         Args:
@@ -343,6 +372,8 @@ class SimDistAgent(ckpt_format.LoadableAgent):
             compile: ``torch.compile`` the planning loop.
             action_spec: the env's TorchRL action spec (``env.action_spec``, batched or
                 not; see :func:`~simdist.agents.action_spec.action_bounds`).
+            command_index: the observation entry holding the command, which
+                ``config.proposal_commands`` replaces (the quadruped tasks put it last).
 
         Examples:
             >>> from torchrl.data import Bounded
@@ -364,8 +395,8 @@ class SimDistAgent(ckpt_format.LoadableAgent):
         planner = LatentMPPIPlanner.from_world_model(
             model, config, seed=seed, compile=compile,
             action_bounds=None if action_low is None else (action_low, action_high))
-        return SimDistPolicy(model, planner,
-                             latency_compensation=config.latency_compensation).to(self.device)
+        return SimDistPolicy(model, planner, latency_compensation=config.latency_compensation,
+                             command_index=command_index).to(self.device)
 
     # -- self-describing checkpoints --------------------------------------------------
     def describe(self) -> dict:

@@ -72,6 +72,17 @@ class PlannerConfig:
     # follow the prior afterwards, so each proposal's score is the model's estimate of
     # that first action under the prior, undiluted by noise on steps that are re-planned.
     policy_noise_steps: int = 0
+    # Commands the policy prior is also asked about (command-diverse proposals; empty: off).
+    # The prior is one gait per command, learnt where the robot was trained; under a
+    # shifted dynamics another command's gait can track this command better (a slow gait
+    # that slides back on ice while a faster one climbs). With commands given, SimDistPolicy
+    # encodes the history once more per command (the observation's command entry
+    # replaced) and the planner splits its prior proposals evenly between the episode's own
+    # latent and these: each such proposal rolls the prior from its command's latent to
+    # make an action sequence, then is scored from the true latent, so the rewards and
+    # value are always the episode's own command's. Costs one more rollout per such
+    # proposal.
+    proposal_commands: tuple[float, ...] = ()
     # Arithmetic of the candidates' rollouts: "none" (float32) or "bfloat16" (the models
     # run under torch.autocast: matmuls in bfloat16 but the terminal value head's, scores
     # accumulated and the MPPI update in float32). On CPU cores with AVX512-BF16 a call costs 2.6x less; on an H200
@@ -115,6 +126,11 @@ class PlannerConfig:
             raise ValueError(f"value_weight must be >= 0, got {self.value_weight}")
         if self.noise_beta < 0:
             raise ValueError(f"noise_beta must be >= 0, got {self.noise_beta}")
+        commands = tuple(self.proposal_commands)
+        if not all(isinstance(v, numbers.Real) and math.isfinite(v) for v in commands):
+            raise ValueError(f"proposal_commands must be finite numbers, got {commands!r}")
+        # a list read back from a checkpoint's JSON becomes the tuple a frozen config holds
+        object.__setattr__(self, "proposal_commands", tuple(float(v) for v in commands))
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {list(PRECISIONS)}, got "
                              f"{self.precision!r}")
@@ -181,7 +197,10 @@ class LatentMPPIPlanner(TensorDictModuleBase):
     ``("planner", "std")``, ``("planner", "rewards")`` (``[B, H]``) and
     ``("planner", "value")`` (``[B]``): predicted rewards and terminal value along the best
     trajectory of the last iteration, and ``("planner", "elite_actions")``
-    (``[B, K, H, A]``, best first).
+    (``[B, K, H, A]``, best first). With ``proposal_latent_key`` (``[B, C, L]``, e.g. the
+    same history encoded under other commands: ``PlannerConfig.proposal_commands``) the
+    prior's proposals are shared between ``latent`` and those C latents; all are scored
+    from ``latent``.
 
     Args:
         dynamics: ``(z [N, L], a [N, A]) -> z' [N, L]``.
@@ -197,6 +216,8 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             overriding the config's scalar bounds.
         latent_dim: the latent size ``L`` the models expect, checked on every call
             (default: ``dynamics.latent_dim`` if it has one; ``from_world_model`` sets it).
+        proposal_latent_key: where other latents to roll the prior from are read, if
+            present.
 
     Inputs are checked at the boundary, naming the key: ``latent`` must be a finite
     floating-point ``[B, L]`` (a NaN or inf latent would otherwise give a finite,
@@ -217,14 +238,16 @@ class LatentMPPIPlanner(TensorDictModuleBase):
     def __init__(self, dynamics, reward, value, action_dim: int,
                  config: PlannerConfig = PlannerConfig(), policy=None, seed: int = 0,
                  compile: bool = False, latent_key="latent", action_key="action",
-                 is_init_key="is_init", action_bounds=None, latent_dim: int | None = None):
+                 is_init_key="is_init", action_bounds=None, latent_dim: int | None = None,
+                 proposal_latent_key="proposal_latent"):
         super().__init__()
         self.config, self.action_dim = config, int(action_dim)
         latent_dim = latent_dim if latent_dim is not None else getattr(
             _as_function(dynamics), "latent_dim", None)
         self.latent_dim = int(latent_dim) if latent_dim is not None else None
         self.latent_key, self.action_key, self.is_init_key = latent_key, action_key, is_init_key
-        self.in_keys = [latent_key, is_init_key]
+        self.proposal_latent_key = proposal_latent_key
+        self.in_keys = [latent_key, is_init_key, proposal_latent_key]
         self.out_keys = [action_key, ("planner", "mean"), ("planner", "std"),
                          ("planner", "rewards"), ("planner", "value"),
                          ("planner", "elite_actions")]
@@ -334,14 +357,41 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
         ).clamp(self.action_low, self.action_high))
 
-    def _plan(self, latent, mean, sample_noise, policy_noise):
+    def _prior_actions(self, starts: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+        """Action sequences ``[B, P, H, A]`` of the prior (+ noise) rolled from ``starts
+        [B, P, L]`` through the dynamics (no scoring: other latents' rewards are not the
+        episode's)."""
+        c, (B, P), H = self.config, noise.shape[:2], self.config.horizon
+        z, actions = starts.reshape(B * P, -1), []
+        for t in range(H):
+            a = (self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
+                 ).clamp(self.action_low, self.action_high)
+            actions.append(a)
+            if t + 1 < H:
+                z = self._dynamics(z, a)
+        return torch.stack(actions, 1).reshape(B, P, H, -1)
+
+    def _proposals(self, latent, noise, proposal_latent):
+        """Prior proposals from the episode's own latent and, with ``proposal_latent [B, C,
+        L]``, from each of those (every ``C + 1``-th proposal from the same latent), all
+        scored from ``latent``."""
+        if proposal_latent is None:
+            return self._policy_proposals(latent, noise)
+        group = torch.arange(noise.shape[1], device=noise.device) % (proposal_latent.shape[1] + 1)
+        own = self._policy_proposals(latent, noise[:, group == 0])
+        starts = proposal_latent[:, group[group > 0] - 1]
+        actions = self._prior_actions(starts, noise[:, group > 0])
+        other = (actions, *self._evaluate(latent, actions))
+        return tuple(torch.cat(x, 1) for x in zip(own, other))
+
+    def _plan(self, latent, mean, sample_noise, policy_noise, proposal_latent=None):
         c = self.config
         B, K = latent.shape[0], c.num_elites
         std = torch.full_like(mean, c.init_std)
         # The proposals do not change across iterations (same latent, same actions), so
         # they are rolled out and scored once; each iteration scores only its new random
         # samples (with 90% proposals, ~2.2x less model work than rescoring all).
-        proposals = (self._policy_proposals(latent, policy_noise)
+        proposals = (self._proposals(latent, policy_noise, proposal_latent)
                      if policy_noise is not None else None)
         for i in range(c.iterations):
             parts = []
@@ -369,6 +419,22 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         batch = torch.arange(B, device=latent.device)
         return mean, std, rewards[batch, best], values[batch, best], elites
 
+    def _proposal_latent(self, tensordict, latent, squeeze: bool) -> torch.Tensor | None:
+        """``proposal_latent_key`` (``[B, C, L]``) checked against ``latent [B, L]``, or
+        ``None`` without it, without a prior or without prior proposals."""
+        other = tensordict.get(self.proposal_latent_key, None)
+        if other is None or self._policy is None or not self.config.num_policy:
+            return None
+        other = other[None] if squeeze else other
+        if other.dim() != 3 or other.shape[0] != latent.shape[0] or \
+                other.shape[-1] != latent.shape[-1]:
+            raise ValueError(f"{self.proposal_latent_key!r} must be [B, C, L] with B, L as "
+                             f"{self.latent_key!r} {tuple(latent.shape)}, got "
+                             f"{tuple(other.shape)}")
+        if not torch.isfinite(other).all():
+            raise ValueError(f"{self.proposal_latent_key!r} contains NaN or inf")
+        return other.to(latent.dtype)
+
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         latent = tensordict.get(self.latent_key, None)
         if latent is None:
@@ -395,6 +461,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             raise ValueError(f"{self.is_init_key!r} must hold one flag per environment "
                              f"({B}, as {self.latent_key!r} {tuple(latent.shape)}), got "
                              f"shape {tuple(is_init.shape)}")
+        proposal_latent = self._proposal_latent(tensordict, latent, squeeze)
         gen = self._noise_generator(latent.device)
         with torch.no_grad():
             mean = self._initial_mean(latent, is_init)
@@ -414,7 +481,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             try:
                 with torch.autocast(latent.device.type, dtype=dtype, enabled=dtype is not None):
                     mean, std, rewards, value, elites = self._plan_impl(
-                        latent, mean, sample_noise, policy_noise)
+                        latent, mean, sample_noise, policy_noise, proposal_latent)
             except RuntimeError as err:  # e.g. a latent size the models do not take
                 raise RuntimeError(f"LatentMPPIPlanner: planning from {self.latent_key!r} of "
                                    f"shape {tuple(latent.shape)} failed inside the models "

@@ -245,6 +245,10 @@ class Config:
     # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
     # ones (82/95/75% -> 93/61/104%; benchmarks/README.md, "One step of latency compensation").
     planner_latency_compensation: int = 0
+    # commands the prior's proposals are also drawn for (PlannerConfig.proposal_commands;
+    # empty: off): the history is encoded under each of them too and the prior rolled from
+    # those latents, every candidate scored for the episode's own command.
+    planner_proposal_commands: tuple[float, ...] = ()
     # arithmetic of the planner's candidate rollouts (PlannerConfig.precision): "none"
     # (float32), "bfloat16" (autocast; scores and the MPPI update stay float32) or "auto"
     # (bfloat16 where the device has native bfloat16 matmuls, as mixed_precision). bfloat16
@@ -411,6 +415,7 @@ class Config:
                              policy_noise=self.planner_policy_noise,
                              policy_noise_steps=self.planner_policy_noise_steps,
                              latency_compensation=self.planner_latency_compensation,
+                             proposal_commands=self.planner_proposal_commands,
                              precision=self.planner_precision)
 
 
