@@ -100,7 +100,11 @@ def main():
     recipe = PlannerConfig(horizon=10, num_samples=64, iterations=3, num_elites=8,
                            policy_fraction=0.9, policy_noise=0.3)
     configs = {"CPU default": PlannerConfig(), "SimDist reference": PlannerConfig.reference(),
-               "recipe": recipe, "recipe H20": dataclasses.replace(recipe, horizon=20)}
+               "recipe": recipe, "recipe H20": dataclasses.replace(recipe, horizon=20),
+               # command-diverse proposals from three more latents (random here; the policy
+               # encodes them), the planner's share of what --planner-proposal-commands costs
+               "recipe H20 3 cmds": dataclasses.replace(recipe, horizon=20,
+                                                        proposal_commands=(0.25, 0.5, 0.75))}
     print(f"device {device}, torch threads {torch.get_num_threads()}, latent {wm.latent_dim}, "
           f"actions {wm.action_dim}, size {args.size!r}, precision {args.precision!r}")
     print(f"{'config':18s} {'H x N x iters (K)':>20s} {'simdist ms':>11s} {'compiled ms':>12s} "
@@ -113,6 +117,9 @@ def main():
         ours_cfg = dataclasses.replace(cfg, precision=args.precision)
         ours = LatentMPPIPlanner.from_world_model(wm, ours_cfg, seed=0)
         td = TensorDict({"latent": latent}, [args.batch], device=device)
+        if cfg.proposal_commands:
+            td["proposal_latent"] = torch.rand(args.batch, len(cfg.proposal_commands),
+                                               wm.latent_dim, device=device)
         ours_ms = latency_ms(lambda: ours(td.clone()), calls, device)
         compiled_ms = float("nan")
         # The reference config is a GPU config: compiling its 8 x 25 unrolled loop on a
