@@ -352,20 +352,22 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         :meth:`_evaluate` would give them, so they are never rolled through the dynamics a
         second time.
         """
-        c, B, P = self.config, latent.shape[0], noise.shape[1]
-        return self._rollout(latent, P, lambda t, z: (
-            self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
-        ).clamp(self.action_low, self.action_high))
+        return self._rollout(latent, noise.shape[1],
+                             lambda t, z: self._prior_action(z, noise[:, :, t]))
+
+    def _prior_action(self, z: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+        """The prior's action at ``z [B * P, L]`` plus ``noise [B, P, A]``, in bounds."""
+        noisy = self._policy(z) + self.config.policy_noise * noise.reshape(z.shape[0], -1)
+        return noisy.clamp(self.action_low, self.action_high)
 
     def _prior_actions(self, starts: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         """Action sequences ``[B, P, H, A]`` of the prior (+ noise) rolled from ``starts
         [B, P, L]`` through the dynamics (no scoring: other latents' rewards are not the
         episode's)."""
-        c, (B, P), H = self.config, noise.shape[:2], self.config.horizon
+        (B, P), H = noise.shape[:2], self.config.horizon
         z, actions = starts.reshape(B * P, -1), []
         for t in range(H):
-            a = (self._policy(z) + c.policy_noise * noise[:, :, t].reshape(B * P, -1)
-                 ).clamp(self.action_low, self.action_high)
+            a = self._prior_action(z, noise[:, :, t])
             actions.append(a)
             if t + 1 < H:
                 z = self._dynamics(z, a)

@@ -249,8 +249,8 @@ class Config:
     # empty: off): the history is encoded under each of them too and the prior rolled from
     # those latents, every candidate scored for the episode's own command. 0.25 0.5 0.75
     # measured on slippery_slope (seeds 3 and 4's 8-minute models, paired): -0 [-6, 5] and
-    # +8 [-3, 20]; the whole recipe on seed 3 -11 points at 2 minutes (benchmarks/README.md,
-    # "Command-diverse proposals"): level, so off.
+    # +8 [-3, 20]; the whole recipe on seed 3 -11 / -9 points at 2 / 8 minutes
+    # (benchmarks/README.md, "Command-diverse proposals"): not better, so off.
     planner_proposal_commands: tuple[float, ...] = ()
     # arithmetic of the planner's candidate rollouts (PlannerConfig.precision): "none"
     # (float32), "bfloat16" (autocast; scores and the MPPI update stay float32) or "auto"
