@@ -14,8 +14,9 @@ The recipe's planner (``recipe:``) is every variant's base; a variant overrides 
 
 ``--against RUN/stages/round_2.json`` pairs each variant, episode by episode, with the
 recipe's own evaluation of SimDist in that round (same worlds: evaluate the round's
-weights, ``--weights RUN/stages/round_2/simdist.pt``, on the round's target); ``--pool``
-pools saved comparisons of several seeds without evaluating anything:
+weights, ``--weights RUN/stages/round_2/simdist.pt``, on the round's target), and
+``--against RUN/stages/zero_shot.json`` with the pretrained model's zero-shot evaluation in
+each domain; ``--pool`` pools saved comparisons of several seeds without evaluating anything:
 
     python benchmarks/planner_variants.py --run RUN --domains slippery_slope \
         --weights RUN/stages/round_2/simdist.pt --variant "H60p20:horizon=60,policy_noise_steps=20" \
@@ -90,10 +91,17 @@ class PriorPolicy(torch.nn.Module):
         return self.inner.replace_action(td, torch.maximum(torch.minimum(action, high), low))
 
 
-def recipe_evaluation(record: str | Path) -> dict:
+def recipe_evaluation(record: str | Path, domain: str) -> dict:
     """The recipe's SimDist evaluation (per-episode ``fraction`` and ``command_mps``) kept
-    in a round's stage record."""
-    return read_json(Path(record), "round record")["result"]["simdist_eval"]
+    in a stage record: a round's (``round_k.json``, its target) or the zero-shot stage's
+    (``zero_shot.json``, one evaluation per domain, read for ``domain``)."""
+    result = read_json(Path(record), "stage record")["result"]
+    if "simdist_eval" in result:
+        return result["simdist_eval"]
+    if domain in result and "fraction" in result[domain]:
+        return result[domain]
+    raise ValueError(f"{record} holds no SimDist evaluation in {domain!r}: give a round's "
+                     "record (round_k.json) or the zero-shot stage's (zero_shot.json)")
 
 
 def paired_rows(fractions: list[float], evaluation: dict) -> tuple[list[float], dict]:
@@ -124,12 +132,12 @@ def _print_paired(name: str, groups: list[list[float]], speeds: list[dict]) -> N
 def pool(pairs: list[str], domains: list[str]) -> None:
     """Prints each saved variant's paired difference pooled over ``pairs`` of
     ``VARIANT_JSON=ROUND_JSON`` (one per seed; the interval stratified by seed)."""
-    loaded = [(json.loads(Path(v).read_text()), recipe_evaluation(r))
+    loaded = [(json.loads(Path(v).read_text()), r)
               for v, _, r in (p.partition("=") for p in pairs)]
     for name in loaded[0][0]:
         for domain in domains:
-            rows = [paired_rows(saved[name][domain], ev) for saved, ev in loaded
-                    if domain in saved.get(name, {})]
+            rows = [paired_rows(saved[name][domain], recipe_evaluation(record, domain))
+                    for saved, record in loaded if domain in saved.get(name, {})]
             if rows:
                 _print_paired(f"{name} ({domain})", [d for d, _ in rows], [s for _, s in rows])
 
@@ -140,7 +148,8 @@ def main(argv=None):
     parser.add_argument("--run", help="a finished recipe output folder")
     parser.add_argument("--domains", nargs="+", default=["sim"])
     parser.add_argument("--against", default=None,
-                        help="a round's stage record: pair each evaluation with its SimDist one")
+                        help="a round's stage record (or zero_shot.json for the pretrained "
+                             "model): pair each evaluation with its SimDist one")
     parser.add_argument("--pool", nargs="+", default=None, metavar="VARIANT_JSON=ROUND_JSON",
                         help="pool saved --save-json files against their rounds; no evaluation")
     parser.add_argument("--variant", action="append", default=None,
@@ -166,7 +175,8 @@ def main(argv=None):
         parser.error("--run is required unless --pool is given")
     torch.set_num_threads(1)
     run = Path(args.run)
-    against = recipe_evaluation(args.against) if args.against else None
+    for domain in args.domains if args.against else ():  # a wrong record fails before any work
+        recipe_evaluation(args.against, domain)
     cfg, pretrained = recipe.load_finished_run(
         run, **({"episodes": args.episodes} if args.episodes else {}))
     agent = recipe.planning_agent(cfg, pretrained, args.weights or [pretrained["path"]])
@@ -205,8 +215,9 @@ def main(argv=None):
                   f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}), "
                   f"{sum(stats['upside_down'])}/{len(stats['fraction'])} on its back | "
                   f"{time.perf_counter() - start:.0f} |{extra}", flush=True)
-            if against is not None:
-                diff, speeds = paired_rows(saved[name][domain], against)
+            if args.against:
+                diff, speeds = paired_rows(saved[name][domain],
+                                           recipe_evaluation(args.against, domain))
                 _print_paired(name, [diff], [speeds])
 
 

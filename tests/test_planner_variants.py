@@ -40,3 +40,29 @@ def test_pool_stratifies_the_saved_comparisons_of_several_seeds(tmp_path, capsys
     assert "H60 (slippery_slope) minus the recipe's evaluation" in out
     assert "2 run(s), 8 episodes): +20.0" in out
     assert "0.25 m/s 70% vs 50%" in out
+
+
+def test_pool_pairs_with_the_zero_shot_record_per_domain(tmp_path, capsys):
+    """zero_shot.json keeps one evaluation per domain: each domain pairs with its own."""
+    module = benchmark_module("planner_variants")
+    speeds = [0.25, 0.5]
+    zero_shot = tmp_path / "zero_shot.json"
+    zero_shot.write_text(json.dumps({"result": {
+        "sim": {"fraction": [0.9, 1.0], "command_mps": speeds},
+        "slippery_slope": {"fraction": [0.1, 0.3], "command_mps": speeds}}}))
+    saved = tmp_path / "variant.json"
+    saved.write_text(json.dumps({"ens": {"sim": [0.9, 0.9], "slippery_slope": [0.4, 0.4]}}))
+    module.main(["--pool", f"{saved}={zero_shot}", "--domains", "sim", "slippery_slope"])
+    out = capsys.readouterr().out
+    assert "ens (sim) minus the recipe's evaluation" in out and "2 episodes): -5.0" in out
+    assert "ens (slippery_slope) minus" in out and "2 episodes): +20.0" in out
+
+
+def test_a_record_without_the_domain_fails_before_any_evaluation(tmp_path):
+    module = benchmark_module("planner_variants")
+    zero_shot = tmp_path / "zero_shot.json"
+    zero_shot.write_text(json.dumps({"result": {
+        "sim": {"fraction": [0.9], "command_mps": [0.5]}}}))
+    with pytest.raises(ValueError, match="no SimDist evaluation in 'foam'"):
+        module.main(["--run", str(tmp_path / "no_run_here"), "--against", str(zero_shot),
+                     "--domains", "foam"])
