@@ -175,8 +175,9 @@ def main(argv=None):
         parser.error("--run is required unless --pool is given")
     torch.set_num_threads(1)
     run = Path(args.run)
-    for domain in args.domains if args.against else ():  # a wrong record fails before any work
-        recipe_evaluation(args.against, domain)
+    # read per domain up front, so that a wrong record fails before any evaluation
+    against = ({d: recipe_evaluation(args.against, d) for d in args.domains}
+               if args.against else None)
     cfg, pretrained = recipe.load_finished_run(
         run, **({"episodes": args.episodes} if args.episodes else {}))
     agent = recipe.planning_agent(cfg, pretrained, args.weights or [pretrained["path"]])
@@ -215,9 +216,8 @@ def main(argv=None):
                   f"[{100 * low:.0f}, {100 * high:.0f}] ({100 * stats['iqm_fraction']:.0f}), "
                   f"{sum(stats['upside_down'])}/{len(stats['fraction'])} on its back | "
                   f"{time.perf_counter() - start:.0f} |{extra}", flush=True)
-            if args.against:
-                diff, speeds = paired_rows(saved[name][domain],
-                                           recipe_evaluation(args.against, domain))
+            if against is not None:
+                diff, speeds = paired_rows(saved[name][domain], against[domain])
                 _print_paired(name, [diff], [speeds])
 
 
