@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import subprocess
 import sys
@@ -446,6 +447,41 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
                           for tag in ("", "_member_1"))
     assert member_0.shape == member_1.shape and (member_0 > 0).all()
     assert not torch.equal(member_0, member_1) and not torch.equal(member_0, torch.ones_like(member_0))
+
+
+def test_members_pretrained_side_by_side_equal_those_trained_one_after_the_other(
+        tmp_path, tiny_expert, monkeypatch):
+    from simdist.recipes import simdist_quadruped as recipe
+    cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "pretrain_updates": 6},
+                        ensemble_size=2, threads=2)
+    assert recipe.member_jobs(cfg) == (2, 1)  # two processes of one thread each
+    assert recipe.member_jobs(recipe.Config(ensemble_size=2, threads=1)) == (1, 1)
+    assert recipe.member_jobs(recipe.Config(ensemble_size=3, threads=4)) == (3, 1)
+    assert recipe.member_jobs(recipe.Config(ensemble_size=2, ensemble_shared_encoder=True,
+                                            threads=2)) == (1, 2)
+    dataset = recipe.dataset_stage(cfg, tiny_expert, tmp_path / "dataset")["path"]
+    logged = []
+    monkeypatch.setattr(recipe, "log_metrics", lambda _, prefix, m, step: logged.append(
+        (prefix, step)))
+    side_by_side = recipe.pretrain_stage(cfg, dataset, tiny_expert, tmp_path / "jobs")
+    assert logged == [("pretrain", s) for s in range(1, 7)] + [
+        ("pretrain/member_1", s) for s in range(1, 7)]  # the workers' updates, once each
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # what each worker had
+    try:
+        in_turn = recipe.pretrain_stage(dataclasses.replace(cfg, ensemble_jobs=1), dataset,
+                                        tiny_expert, tmp_path / "in_turn")
+    finally:
+        torch.set_num_threads(threads)
+    for a, b in zip(side_by_side["members"], in_turn["members"], strict=True):
+        a, b = (torch.load(x, weights_only=True) for x in (a, b))
+        assert all(torch.equal(v, b[k]) for k, v in a.items())
+    assert side_by_side["last"] == in_turn["last"]
+    # a rerun finds both members trained: nothing is trained or logged again
+    logged.clear()
+    assert recipe.pretrain_stage(cfg, dataset, tiny_expert, tmp_path / "jobs")["last"] == \
+        side_by_side["last"]
+    assert logged == []
 
 
 def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert, capsys):

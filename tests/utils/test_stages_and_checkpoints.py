@@ -155,6 +155,14 @@ def test_run_jobs_in_processes_keeps_order_and_raises_the_first_error():
         run_jobs(calls, jobs=0)
 
 
+def test_run_jobs_gives_each_worker_the_threads_asked_for():
+    calls = [(torch.get_num_threads, ())] * 2
+    assert run_jobs(calls, jobs=2, threads=1) == [1, 1]
+    assert run_jobs(calls, jobs=2, threads=3) == [3, 3]
+    with pytest.raises(ValueError, match="threads must be >= 1"):
+        run_jobs(calls, jobs=2, threads=0)
+
+
 def _stamp(path: str, name: str, seconds: float) -> str:
     """Appends ``name start`` and ``name end`` to ``path`` around a sleep (a run_jobs call)."""
     with open(path, "a") as f:

@@ -53,11 +53,12 @@ from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, episode_
                                locomotion_env, mean_metrics, rollout, stage_seed,
                                train_resumable)
 from simdist.pipelines.evaluate_agent import record_video
-from simdist.pipelines.experiment_log import LOGGERS, make_logger, plot_curves
+from simdist.pipelines.experiment_log import LOGGERS, log_metrics, make_logger, plot_curves
 from simdist.pipelines.locomotion import UPSIDE_DOWN
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.utils import (RunFolderError, StageRunner, load_checkpoint, load_memmap,
-                           resolve_device, save_atomic, save_memmap, write_json_atomic)
+                           resolve_device, run_jobs, save_atomic, save_memmap,
+                           write_json_atomic)
 from simdist.utils.cli import (check, check_builds, check_positive, exit_on_folder_errors,
                                parse_config)
 from simdist.utils.precision import PRECISIONS, resolve_precision
@@ -203,6 +204,11 @@ class Config:
     # (default 15%): no gain after finetuning (benchmarks/README.md, "A dynamics ensemble
     # on one encoder").
     ensemble_shared_encoder: bool = False
+    # processes that pretrain the K independent members side by side (0: as many as the
+    # torch threads allow, one thread or more each; 1: one after the other in this
+    # process). A member's weights depend on its seed and its thread count only, so this
+    # changes no figure beyond what --threads does. Not part of the results.
+    ensemble_jobs: int = 0
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
     # rerun recordings and videos of one target episode before and after finetuning (and
@@ -355,6 +361,7 @@ class Config:
                        "reward_upright_power")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
                        "model_history", "model_dynamics_hidden", "model_latent_dim", "threads",
+                       "ensemble_jobs",
                        "finetune_reward_weight", "finetune_value_weight",
                        "finetune_priority_alpha", "finetune_priority_beta",
                        "finetune_sim_fraction", allow_zero=True)
@@ -605,8 +612,41 @@ def pretrain_member(cfg: Config, buffer, data, expert_path: str, stage_dir: Path
     return agent, history
 
 
+def pretrain_member_job(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
+                        i: int) -> tuple[int, list[dict]]:
+    """Member ``i``'s pretraining on its own (a :func:`run_jobs` worker), the generator set
+    as :func:`pretrain_stage` sets it for member 0, so every member trains as it would in
+    the stage's own process; its weights go to its stage folder.
+
+    Returns:
+        How many updates a checkpoint already held, and the metrics of those trained now
+        (the caller logs these, so a resumed stage logs no update twice).
+    """
+    checkpoint = stage_dir / ("" if i == 0 else f"member_{i}") / "training.pt"
+    done = len(load_checkpoint(checkpoint)["history"]) if checkpoint.exists() else 0
+    torch.manual_seed(cfg.seed)
+    buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
+    return done, pretrain_member(cfg, buffer, buffer[:], expert_path, stage_dir, i)[1][done:]
+
+
+def member_jobs(cfg: Config) -> tuple[int, int]:
+    """(processes, torch threads each) for pretraining the independent members."""
+    independent = cfg.ensemble_size if not cfg.ensemble_shared_encoder else 1
+    threads = cfg.threads or torch.get_num_threads()
+    jobs = min(independent, cfg.ensemble_jobs or threads)
+    return max(1, jobs), max(1, threads // max(1, jobs))
+
+
 def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
                    logger=None) -> dict:
+    jobs, threads = member_jobs(cfg)
+    if jobs > 1:  # each member in a worker; the loop below then restores them from disk
+        histories = run_jobs([(pretrain_member_job, (cfg, dataset, expert_path, stage_dir, i))
+                              for i in range(cfg.ensemble_size)], jobs, threads=threads)
+        for i, (done, trained) in enumerate(histories):
+            for step, metrics in enumerate(trained, done + 1):
+                log_metrics(logger, "pretrain" if i == 0 else f"pretrain/member_{i}",
+                            metrics, step)
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
     data = buffer[:]  # the whole memory-mapped dataset (a view: nothing is copied)
@@ -914,7 +954,7 @@ def run(cfg: Config) -> dict:
     # to record may differ from the first run's
     runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
                          runtime_keys=("device", "logger", "threads", "dataset_workers",
-                                       "record"))
+                                       "record", "ensemble_jobs"))
     logger = make_logger(cfg.logger, out)
     precision = {name: resolve_precision(getattr(cfg, name), cfg.device)
                  for name in ("mixed_precision", "planner_precision")}

@@ -239,7 +239,8 @@ def _release_lock(key: str) -> None:
 
 # -- parallel jobs ---------------------------------------------------------------------------
 def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
-             after: Sequence[Sequence[int]] | None = None) -> list:
+             after: Sequence[Sequence[int]] | None = None, threads: int | None = None
+             ) -> list:
     """Runs ``(fn, args)`` calls, ``jobs`` at a time; returns their results in order.
 
     ``after[i]`` lists the calls (earlier in ``calls``) that call ``i`` waits for, e.g. a
@@ -249,8 +250,9 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
 
     ``jobs=1`` calls them here, in order. Otherwise each runs in one of ``jobs`` spawned
     worker processes (``fn`` must be importable: a module-level function), each with
-    ``cpu_count // jobs`` torch threads, so that e.g. two recipe stages that do not need
-    each other's results share a 2-core machine instead of queueing. On an error, calls not
+    ``threads`` torch threads (default ``cpu_count // jobs``), so that e.g. two recipe
+    stages that do not need each other's results share a 2-core machine instead of
+    queueing. On an error, calls not
     yet started are cancelled, those running finish (a recipe stage keeps what it
     checkpointed), then the first error is raised.
 
@@ -268,6 +270,8 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
     """
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
+    if threads is not None and threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
     after = [tuple(a) for a in after] if after is not None else [()] * len(calls)
     if len(after) != len(calls):
         raise ValueError(f"after has {len(after)} entries for {len(calls)} calls")
@@ -277,7 +281,7 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
                              f"listed before it (indices 0..{i - 1})")
     if jobs == 1 or len(calls) <= 1:
         return [fn(*args) for fn, args in calls]
-    threads = max(1, (os.cpu_count() or 1) // jobs)
+    threads = threads or max(1, (os.cpu_count() or 1) // jobs)
     with _LOCKS_GUARD:
         locks = sorted(set(_HELD) | _INHERITED)
     # spawn, not fork: forked children of a process that already ran torch/OpenMP or
