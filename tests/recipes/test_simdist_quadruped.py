@@ -1,5 +1,6 @@
 import dataclasses
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -482,6 +483,37 @@ def test_members_pretrained_side_by_side_equal_those_trained_one_after_the_other
     assert recipe.pretrain_stage(cfg, dataset, tiny_expert, tmp_path / "jobs")["last"] == \
         side_by_side["last"]
     assert logged == []
+
+
+def test_members_finetuned_side_by_side_equal_those_finetuned_one_after_the_other(
+        tmp_path, tiny_expert, monkeypatch):
+    from simdist.recipes import simdist_quadruped as recipe
+    cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "finetune_updates": 5},
+                        ensemble_size=2, threads=2, ensemble_jobs=1, expert=tiny_expert)
+    assert recipe.member_jobs(cfg, 2) == (1, 2)
+    assert recipe.member_jobs(recipe.Config(ensemble_size=2, threads=2,
+                                            ensemble_shared_encoder=True), 2) == (2, 1)
+    dataset = recipe.dataset_stage(cfg, tiny_expert, tmp_path / "dataset")["path"]
+    pretrained = recipe.pretrain_stage(cfg, dataset, tiny_expert, tmp_path / "pretrain")
+    logged = []
+    monkeypatch.setattr(recipe, "log_metrics", lambda _, prefix, m, step: logged.append(
+        (prefix, step)))
+    side = recipe.round_stage(dataclasses.replace(cfg, ensemble_jobs=2), 0, pretrained,
+                              tiny_expert, tmp_path / "side", None)
+    assert sorted(logged) == sorted((f"round_1/{m}{tag}", s) for m in ("simdist", "whole")
+                                    for tag in ("", "_member_1") for s in range(1, 6))
+    shutil.copytree(tmp_path / "side" / "data", tmp_path / "turn" / "data")  # same data
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # what each worker had
+    try:
+        turn = recipe.round_stage(cfg, 0, pretrained, tiny_expert, tmp_path / "turn", None)
+    finally:
+        torch.set_num_threads(threads)
+    for key in ("simdist_members", "whole_members"):
+        for a, b in zip(side[key], turn[key], strict=True):
+            a, b = (torch.load(x, weights_only=True) for x in (a, b))
+            assert all(torch.equal(v, b[k]) for k, v in a.items()), key
+    assert side["simdist_loss"] == turn["simdist_loss"] and side["target_steps"] == turn["target_steps"]
 
 
 def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert, capsys):

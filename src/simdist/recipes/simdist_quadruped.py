@@ -204,10 +204,12 @@ class Config:
     # (default 15%): no gain after finetuning (benchmarks/README.md, "A dynamics ensemble
     # on one encoder").
     ensemble_shared_encoder: bool = False
-    # processes that pretrain the K independent members side by side (0: as many as the
-    # torch threads allow, one thread or more each; 1: one after the other in this
-    # process). A member's weights depend on its seed and its thread count only, so this
-    # changes no figure beyond what --threads does. Not part of the results.
+    # processes that pretrain (and each round finetune) the K members side by side (0: as
+    # many as the torch threads allow, one thread or more each; 1: one after the other in
+    # this process). Small models use two threads poorly, so two one-thread processes
+    # train two members in ~1.2x one member's time (benchmarks/parallel_members.py). A
+    # member's weights depend on its seed and thread count only, so this changes no
+    # figure beyond what --threads does. Not part of the results.
     ensemble_jobs: int = 0
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
@@ -629,12 +631,14 @@ def pretrain_member_job(cfg: Config, dataset: str, expert_path: str, stage_dir: 
     return done, pretrain_member(cfg, buffer, buffer[:], expert_path, stage_dir, i)[1][done:]
 
 
-def member_jobs(cfg: Config) -> tuple[int, int]:
-    """(processes, torch threads each) for pretraining the independent members."""
-    independent = cfg.ensemble_size if not cfg.ensemble_shared_encoder else 1
+def member_jobs(cfg: Config, members: int | None = None) -> tuple[int, int]:
+    """(processes, torch threads each) for training ``members`` models side by side
+    (default: the members pretrained independently; one with a shared encoder)."""
+    if members is None:
+        members = cfg.ensemble_size if not cfg.ensemble_shared_encoder else 1
     threads = cfg.threads or torch.get_num_threads()
-    jobs = min(independent, cfg.ensemble_jobs or threads)
-    return max(1, jobs), max(1, threads // max(1, jobs))
+    jobs = max(1, min(members, cfg.ensemble_jobs or threads))
+    return jobs, max(1, threads // jobs)
 
 
 def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
@@ -763,9 +767,52 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
     return torch.cat(batches, 0)
 
 
+def finetune_member(cfg: Config, k: int, pretrained: dict, path: str, i: int, name: str,
+                    what: str, data, sample, stage_dir: Path, logger=None
+                    ) -> tuple[str, str, list[dict]]:
+    """Member ``i`` of one method of round ``k``: ``cfg.finetune_updates`` resumable updates
+    from the weights at ``path``; returns its weights, its agent file and its history."""
+    agent = load_agent(cfg, pretrained, path)
+    update, optim = ((agent.finetune_update, agent.finetune_optim) if name == "simdist"
+                     else (agent.finetune_whole_update, agent.whole_optim))
+    state = {"wm": agent.world_model, "opt": optim}
+    tag = name if i == 0 else f"{name}_member_{i}"
+    if cfg.finetune_priority_alpha > 0:  # this model's own errors rank the slices
+        slices = PrioritisedSlices(data, cfg.slice_len, cfg.batch_slices,
+                                   cfg.finetune_priority_alpha, cfg.finetune_priority_beta)
+        if not (stage_dir / f"{tag}.ckpt").exists():  # else its checkpoint restores them
+            slices.measure_all(agent.finetune_slice_errors)
+        sample, update = slices.sample, prioritised_update(update, slices)
+        state["priorities"] = slices
+    hist = train_resumable(update, sample, cfg.finetune_updates, state,
+                           stage_dir / f"{tag}.ckpt",
+                           desc=f"round {k + 1}: {what}" + (f" (member {i})" if i else ""),
+                           seed=stage_seed(cfg.seed, f"round_{k + 1}/{tag}"),
+                           logger=logger, log_prefix=f"round_{k + 1}/{tag}")
+    save_atomic(agent.world_model.state_dict(), stage_dir / f"{tag}.pt")
+    agent_file = save_agent(cfg, agent, stage_dir / f"{tag}_agent.pt",
+                            target=cfg.target, method=name, member=i)
+    return str(stage_dir / f"{tag}.pt"), agent_file, hist
+
+
+def finetune_member_job(cfg: Config, k: int, pretrained: dict, path: str, i: int, name: str,
+                        what: str, data_dirs: list[str], dataset: str | None, stage_dir: Path
+                        ) -> tuple[str, str, list[dict], int]:
+    """:func:`finetune_member` in a :func:`run_jobs` worker, on the round's data read from
+    disk; also returns how many updates its checkpoint already held (the caller logs only
+    the rest)."""
+    tag = name if i == 0 else f"{name}_member_{i}"
+    checkpoint = stage_dir / f"{tag}.ckpt"
+    done = len(load_checkpoint(checkpoint)["history"]) if checkpoint.exists() else 0
+    data, sample = round_data(cfg, data_dirs, dataset)
+    return (*finetune_member(cfg, k, pretrained, path, i, name, what, data, sample, stage_dir),
+            done)
+
+
 def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[str] | None,
                           name: str, what: str, data, uniform_sample, stage_dir: Path,
-                          logger=None) -> dict:
+                          logger=None, data_dirs: list[str] | None = None,
+                          dataset: str | None = None) -> dict:
     """One method of a round for every ensemble member: ``cfg.finetune_updates`` resumable
     updates (``name`` "simdist": dynamics only; "whole": the ablation), weights and a
     self-describing agent file saved per member, then the members' planner evaluated in
@@ -773,44 +820,53 @@ def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[
 
     Slices of ``data`` (``[episodes, steps]``) come from ``uniform_sample``, or with
     ``cfg.finetune_priority_alpha > 0`` from :class:`PrioritisedSlices` ranked by the
-    member's own consistency error (measured on every slice before the first update)."""
-    saved, agent_files, losses = [], [], []
-    for i, path in enumerate(member_paths(pretrained, previous)):
-        agent = load_agent(cfg, pretrained, path)
-        update, optim = ((agent.finetune_update, agent.finetune_optim) if name == "simdist"
-                         else (agent.finetune_whole_update, agent.whole_optim))
-        state = {"wm": agent.world_model, "opt": optim}
-        tag = name if i == 0 else f"{name}_member_{i}"
-        if cfg.finetune_priority_alpha > 0:  # this model's own errors rank the slices
-            slices = PrioritisedSlices(data, cfg.slice_len, cfg.batch_slices,
-                                       cfg.finetune_priority_alpha, cfg.finetune_priority_beta)
-            if not (stage_dir / f"{tag}.ckpt").exists():  # else its checkpoint restores them
-                slices.measure_all(agent.finetune_slice_errors)
-            sample, update = slices.sample, prioritised_update(update, slices)
-            state["priorities"] = slices
-        else:
-            sample = uniform_sample
-        hist = train_resumable(update, sample, cfg.finetune_updates, state,
-                               stage_dir / f"{tag}.ckpt",
-                               desc=f"round {k + 1}: {what}" + (f" (member {i})" if i else ""),
-                               seed=stage_seed(cfg.seed, f"round_{k + 1}/{tag}"),
-                               logger=logger, log_prefix=f"round_{k + 1}/{tag}")
-        save_atomic(agent.world_model.state_dict(), stage_dir / f"{tag}.pt")
-        saved.append(str(stage_dir / f"{tag}.pt"))
-        agent_files.append(save_agent(cfg, agent, stage_dir / f"{tag}_agent.pt",
-                                      target=cfg.target, method=name, member=i))
-        losses.append(mean_metrics(hist))
+    member's own consistency error (measured on every slice before the first update).
+    Given ``data_dirs`` (the folders ``data`` was read from) and more than one member,
+    the members finetune side by side in worker processes (:func:`member_jobs`)."""
+    paths = member_paths(pretrained, previous)
+    jobs, threads = member_jobs(cfg, len(paths))
+    if jobs > 1 and data_dirs is not None:
+        done = run_jobs([(finetune_member_job, (cfg, k, pretrained, path, i, name, what,
+                                                data_dirs, dataset, stage_dir))
+                         for i, path in enumerate(paths)], jobs, threads=threads)
+        for i, (*_, trained, before) in enumerate(done):
+            tag = name if i == 0 else f"{name}_member_{i}"
+            for step, metrics in enumerate(trained[before:], before + 1):
+                log_metrics(logger, f"round_{k + 1}/{tag}", metrics, step)
+    else:
+        done = [finetune_member(cfg, k, pretrained, path, i, name, what, data, uniform_sample,
+                                stage_dir, logger) for i, path in enumerate(paths)]
+    saved = [d[0] for d in done]
+    agent_files = [d[1] for d in done]
     return {name: saved[0], f"{name}_members": saved,
             f"{name}_agent": agent_files[0], f"{name}_member_agents": agent_files,
             f"{name}_eval": evaluate_planner(cfg, planning_agent(cfg, pretrained, saved),
                                              cfg.target)[0],
-            f"{name}_loss": losses[0]}
+            f"{name}_loss": mean_metrics(done[0][2])}
 
 
 def previous_members(previous: dict, name: str) -> list[str]:
     """A finished round's weights of method ``name``, one per ensemble member (a round
     recorded before ensembles has one)."""
     return previous.get(f"{name}_members", [previous[name]])
+
+
+def round_data(cfg: Config, data_dirs: list[str], dataset: str | None):
+    """Every round's target data so far (``[episodes, steps]``, read from ``data_dirs``)
+    and the finetuning batch sampler over it; with ``cfg.finetune_sim_fraction > 0`` part
+    of every batch comes from the pretraining ``dataset``."""
+    data = torch.cat([load_memmap(Path(d)) for d in data_dirs], 0)
+    sim_slices = cfg.finetune_sim_slices()
+    buffer = as_slices(data, cfg.slice_len, cfg.batch_slices - sim_slices)
+    sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731
+    if sim_slices:  # co-training: part of every batch from the pretraining dataset
+        if dataset is None:
+            raise ValueError("finetune_sim_fraction > 0 needs the pretraining dataset's path "
+                             "(round_stage(dataset=...))")
+        sim_buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * sim_slices)
+        sample = CoTrainingSlices(sample, lambda: sim_buffer.sample().reshape(-1, cfg.slice_len),
+                                  keys=FINETUNE_KEYS)
+    return data, sample
 
 
 def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_dir: Path,
@@ -827,30 +883,18 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
         fresh = collect_target_data(cfg, collector, budget - done_before,
                                     seed=cfg.seed + 1000 * (k + 1))
         save_memmap(fresh, data_dir)
-    fresh = load_memmap(data_dir)
-    parts = [load_memmap(Path(p)) for p in (previous["data"] if previous else [])]
-    data = torch.cat([*parts, fresh], 0)
-    sim_slices = cfg.finetune_sim_slices()
-    buffer = as_slices(data, cfg.slice_len, cfg.batch_slices - sim_slices)
-    sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731
-    if sim_slices:  # co-training: part of every batch from the pretraining dataset
-        if dataset is None:
-            raise ValueError("finetune_sim_fraction > 0 needs the pretraining dataset's path "
-                             "(round_stage(dataset=...))")
-        sim_buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * sim_slices)
-        sample = CoTrainingSlices(sample, lambda: sim_buffer.sample().reshape(-1, cfg.slice_len),
-                                  keys=FINETUNE_KEYS)
-    results = {"target_steps": done_before + fresh.numel(),
-               "data": [*(previous["data"] if previous else []), str(data_dir)]}
+    data_dirs = [*(previous["data"] if previous else []), str(data_dir)]
+    data, sample = round_data(cfg, data_dirs, dataset)
+    results = {"target_steps": data.numel(), "data": data_dirs}
 
     # SimDist: dynamics only, continuing from the previous round's dynamics.
     results.update(finetune_and_evaluate(
         cfg, k, pretrained, previous and previous_members(previous, "simdist"), "simdist",
-        "finetune dynamics", data, sample, stage_dir, logger))
+        "finetune dynamics", data, sample, stage_dir, logger, data_dirs, dataset))
     # Ablation: the whole world model on the same data, same number of updates.
     results.update(finetune_and_evaluate(
         cfg, k, pretrained, previous and previous_members(previous, "whole"), "whole",
-        "finetune whole model", data, sample, stage_dir, logger))
+        "finetune whole model", data, sample, stage_dir, logger, data_dirs, dataset))
 
     # Baseline: continue the expert's SAC on the same target data.
     sac = OfflineSAC(Expert.load(expert_path),

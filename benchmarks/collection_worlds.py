@@ -1,0 +1,72 @@
+"""Target-data collection time against how many worlds the planner steps at once.
+
+The recipe collects each round's target data (``budgets_min`` minutes at 50 Hz, 250-step
+episodes) with its SimDist planner, ``--collect-episodes`` worlds at a time (default 12).
+A planner call's cost grows less than linearly with its batch, so fewer, wider batches
+collect the same episodes sooner. This times ``collect_target_data`` of a finished run's
+pretrained planner (one model, or the run's ensemble) for the same number of episodes at
+each width, each in a fresh process, the first width listed being the reference.
+
+Usage:
+    python benchmarks/collection_worlds.py --run OUT/seed_0                  # 12 vs 24
+    python benchmarks/collection_worlds.py --run OUT/seed_0 --worlds 12 24 36 --episodes 72
+
+Run on quiet cores (wall-clock): anything else running skews every width.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import subprocess
+import sys
+import time
+
+import torch
+
+
+def collect_seconds(run: str, worlds: int, episodes: int) -> float:
+    """Seconds to collect ``episodes`` target episodes ``worlds`` at a time (this process)."""
+    from simdist.recipes import simdist_quadruped as recipe
+    cfg, pretrained = recipe.load_finished_run(run)
+    cfg = dataclasses.replace(cfg, collect_episodes=worlds)
+    agent = recipe.planning_agent(cfg, pretrained)
+    start = time.perf_counter()
+    data = recipe.collect_target_data(cfg, agent, episodes * cfg.episode_steps, seed=123)
+    seconds = time.perf_counter() - start
+    if data.shape[0] != episodes:
+        raise RuntimeError(f"collected {data.shape[0]} episodes, asked for {episodes}")
+    return seconds
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", required=True, help="a finished recipe run (seed folder)")
+    parser.add_argument("--worlds", type=int, nargs="+", default=[12, 24],
+                        help="worlds per batch; the first is the reference")
+    parser.add_argument("--episodes", type=int, default=24, help="episodes collected")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    parser.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if args.one is not None:  # a child: one width, its time on stdout's last line
+        print(collect_seconds(args.run, args.one, args.episodes))
+        return
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; {args.episodes} "
+          f"episodes of {args.run}'s pretrained planner")
+    print(f"{'worlds at once':>14s} {'batches':>8s} {'seconds':>8s} {'vs first':>9s}")
+    reference = None
+    for worlds in args.worlds:
+        # a fresh process per width: no warmed allocator or kernels carried over
+        out = subprocess.run([sys.executable, __file__, "--run", args.run, "--episodes",
+                              str(args.episodes), "--threads", str(args.threads), "--one",
+                              str(worlds)], capture_output=True, text=True, check=True)
+        seconds = float(out.stdout.strip().splitlines()[-1])
+        reference = reference or seconds
+        batches = -(-args.episodes // worlds)
+        print(f"{worlds:14d} {batches:8d} {seconds:8.1f} {seconds / reference:8.2f}x")
+
+
+if __name__ == "__main__":
+    main()
