@@ -614,21 +614,28 @@ def pretrain_member(cfg: Config, buffer, data, expert_path: str, stage_dir: Path
     return agent, history
 
 
+def updates_done(checkpoint: Path) -> int:
+    """How many updates a :func:`train_resumable` checkpoint holds (0: none yet)."""
+    return len(load_checkpoint(checkpoint)["history"]) if checkpoint.exists() else 0
+
+
+def log_trained(logger, prefix: str, history: list[dict], done: int) -> None:
+    """Logs a worker's updates after the ``done`` its checkpoint already held (workers get
+    no logger; a resumed stage logs no update twice)."""
+    for step, metrics in enumerate(history[done:], done + 1):
+        log_metrics(logger, prefix, metrics, step)
+
+
 def pretrain_member_job(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
-                        i: int) -> tuple[int, list[dict]]:
+                        i: int) -> tuple[list[dict], int]:
     """Member ``i``'s pretraining on its own (a :func:`run_jobs` worker), the generator set
     as :func:`pretrain_stage` sets it for member 0, so every member trains as it would in
-    the stage's own process; its weights go to its stage folder.
-
-    Returns:
-        How many updates a checkpoint already held, and the metrics of those trained now
-        (the caller logs these, so a resumed stage logs no update twice).
-    """
-    checkpoint = stage_dir / ("" if i == 0 else f"member_{i}") / "training.pt"
-    done = len(load_checkpoint(checkpoint)["history"]) if checkpoint.exists() else 0
+    the stage's own process; its weights go to its stage folder. Returns its history and
+    how many of those updates its checkpoint already held."""
+    done = updates_done(stage_dir / ("" if i == 0 else f"member_{i}") / "training.pt")
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
-    return done, pretrain_member(cfg, buffer, buffer[:], expert_path, stage_dir, i)[1][done:]
+    return pretrain_member(cfg, buffer, buffer[:], expert_path, stage_dir, i)[1], done
 
 
 def member_jobs(cfg: Config, members: int | None = None) -> tuple[int, int]:
@@ -647,10 +654,8 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
     if jobs > 1:  # each member in a worker; the loop below then restores them from disk
         histories = run_jobs([(pretrain_member_job, (cfg, dataset, expert_path, stage_dir, i))
                               for i in range(cfg.ensemble_size)], jobs, threads=threads)
-        for i, (done, trained) in enumerate(histories):
-            for step, metrics in enumerate(trained, done + 1):
-                log_metrics(logger, "pretrain" if i == 0 else f"pretrain/member_{i}",
-                            metrics, step)
+        for i, (history, done) in enumerate(histories):
+            log_trained(logger, "pretrain" if i == 0 else f"pretrain/member_{i}", history, done)
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
     data = buffer[:]  # the whole memory-mapped dataset (a view: nothing is copied)
@@ -767,6 +772,11 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
     return torch.cat(batches, 0)
 
 
+def member_tag(name: str, i: int) -> str:
+    """A method's file stem for member ``i`` (member 0 keeps the single-model name)."""
+    return name if i == 0 else f"{name}_member_{i}"
+
+
 def finetune_member(cfg: Config, k: int, pretrained: dict, path: str, i: int, name: str,
                     what: str, data, sample, stage_dir: Path, logger=None
                     ) -> tuple[str, str, list[dict]]:
@@ -776,7 +786,7 @@ def finetune_member(cfg: Config, k: int, pretrained: dict, path: str, i: int, na
     update, optim = ((agent.finetune_update, agent.finetune_optim) if name == "simdist"
                      else (agent.finetune_whole_update, agent.whole_optim))
     state = {"wm": agent.world_model, "opt": optim}
-    tag = name if i == 0 else f"{name}_member_{i}"
+    tag = member_tag(name, i)
     if cfg.finetune_priority_alpha > 0:  # this model's own errors rank the slices
         slices = PrioritisedSlices(data, cfg.slice_len, cfg.batch_slices,
                                    cfg.finetune_priority_alpha, cfg.finetune_priority_beta)
@@ -801,9 +811,7 @@ def finetune_member_job(cfg: Config, k: int, pretrained: dict, path: str, i: int
     """:func:`finetune_member` in a :func:`run_jobs` worker, on the round's data read from
     disk; also returns how many updates its checkpoint already held (the caller logs only
     the rest)."""
-    tag = name if i == 0 else f"{name}_member_{i}"
-    checkpoint = stage_dir / f"{tag}.ckpt"
-    done = len(load_checkpoint(checkpoint)["history"]) if checkpoint.exists() else 0
+    done = updates_done(stage_dir / f"{member_tag(name, i)}.ckpt")
     data, sample = round_data(cfg, data_dirs, dataset)
     return (*finetune_member(cfg, k, pretrained, path, i, name, what, data, sample, stage_dir),
             done)
@@ -829,10 +837,8 @@ def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[
         done = run_jobs([(finetune_member_job, (cfg, k, pretrained, path, i, name, what,
                                                 data_dirs, dataset, stage_dir))
                          for i, path in enumerate(paths)], jobs, threads=threads)
-        for i, (*_, trained, before) in enumerate(done):
-            tag = name if i == 0 else f"{name}_member_{i}"
-            for step, metrics in enumerate(trained[before:], before + 1):
-                log_metrics(logger, f"round_{k + 1}/{tag}", metrics, step)
+        for i, (*_, history, before) in enumerate(done):
+            log_trained(logger, f"round_{k + 1}/{member_tag(name, i)}", history, before)
     else:
         done = [finetune_member(cfg, k, pretrained, path, i, name, what, data, uniform_sample,
                                 stage_dir, logger) for i, path in enumerate(paths)]

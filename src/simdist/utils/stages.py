@@ -252,9 +252,8 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
     worker processes (``fn`` must be importable: a module-level function), each with
     ``threads`` torch threads (default ``cpu_count // jobs``), so that e.g. two recipe
     stages that do not need each other's results share a 2-core machine instead of
-    queueing. On an error, calls not
-    yet started are cancelled, those running finish (a recipe stage keeps what it
-    checkpointed), then the first error is raised.
+    queueing. On an error, calls not yet started are cancelled, those running finish (a
+    recipe stage keeps what it checkpointed), then the first error is raised.
 
     Workers die with this process: killing it (even with SIGKILL) leaves no orphans (on
     Linux the kernel signals them; elsewhere they notice within a second). A worker that
