@@ -353,12 +353,50 @@ def test_planner_flags_reach_the_planner_config():
     assert Config().planner().precision == Config().mixed_precision == "auto"
 
 
+def test_the_collection_planner_is_the_planner_unless_its_own_search_is_set():
+    from simdist.recipes.simdist_quadruped import Config
+    assert Config().collect_planner() == Config().planner()
+    cheap = Config(collect_planner_samples=48, collect_planner_iterations=2,
+                   collect_planner_elites=6)
+    expected = dataclasses.replace(Config().planner(), num_samples=48, iterations=2,
+                                   num_elites=6)
+    assert cheap.collect_planner() == expected
+    assert cheap.planner() == Config().planner()  # evaluation keeps the full search
+    # one field set, the others follow the planner
+    assert Config(collect_planner_iterations=1).collect_planner() == dataclasses.replace(
+        Config().planner(), iterations=1)
+
+
+def test_collection_plans_with_the_collection_planner_and_evaluation_with_the_planner(
+        monkeypatch):
+    from simdist.recipes import simdist_quadruped as recipe
+    cfg = recipe.Config(model_size="tiny", model_latent_dim=0, episode_steps=8, slice_len=8,
+                        model_horizon=3, collect_episodes=2, episodes=2, planner_horizon=3,
+                        planner_samples=16, planner_iterations=2, planner_elites=4,
+                        planner_precision="none", expert_targets=["sim"],
+                        collect_planner_samples=8, collect_planner_iterations=1,
+                        collect_planner_elites=2)
+    agent = recipe.new_agent(cfg, obs_dim=89, action_dim=12)
+    searches, make_policy = [], agent.policy
+
+    def spy(low, high, planner, **kwargs):
+        searches.append((planner.num_samples, planner.iterations, planner.num_elites))
+        return make_policy(low, high, planner, **kwargs)
+
+    monkeypatch.setattr(agent, "policy", spy)
+    recipe.collect_target_data(cfg, agent, steps=8, seed=0)
+    recipe.evaluate_planner(cfg, agent, "sim")
+    assert searches == [(8, 1, 2), (16, 2, 4)]
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--episodes", "0"], "episodes: must be > 0"),
     (["--dataset-dither-std", "-0.5"], "dither_std must be finite and >= 0"),
     (["--budgets-min", "2", "1"], "budgets_min: must be positive and increasing"),
     (["--planner-elites", "100"], "num_elites (100) must be <= num_samples"),
     (["--planner-policy-noise-steps", "-1"], "policy_noise_steps must be >= 0"),
+    (["--collect-planner-elites", "100"], "num_elites (100) must be <= num_samples"),
+    (["--collect-planner-samples", "-4"], "collect_planner_samples: must be >= 0"),
     (["--model-size", "huge"], "model_size: unknown size 'huge'"),
     (["--mixed-precision", "fp8"], "mixed_precision: unknown precision 'fp8'"),
     (["--planner-precision", "fp8"], "planner_precision: unknown precision 'fp8'"),

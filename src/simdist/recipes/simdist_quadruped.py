@@ -270,6 +270,16 @@ class Config:
     # as float32, so old runs resume as they were made; one made before "auto" became the
     # default (2026-12-02) resumes with --planner-precision bfloat16.
     planner_precision: str = field(default="auto", metadata={ABSENT_MEANS: "none"})
+    # the planner that collects each round's target data, where it differs from the one
+    # that is evaluated (0: the planner's own samples / iterations / elites). Members
+    # finetuned on data a 48 x 2 (6 elites) two-member planner collected plan as well as
+    # those whose data the full 64 x 3 search collected (slippery_slope, seeds 3 and 4,
+    # 8 minutes, both evaluated at 64 x 3: 66% vs 67%), while evaluating with the cheap
+    # search costs ~7 points (benchmarks/README.md, "Two members at one model's planner
+    # cost, through the whole recipe"). So collection can run cheaper than evaluation.
+    collect_planner_samples: int = field(default=0, metadata={ABSENT_MEANS: 0})
+    collect_planner_iterations: int = field(default=0, metadata={ABSENT_MEANS: 0})
+    collect_planner_elites: int = field(default=0, metadata={ABSENT_MEANS: 0})
     # target rounds: cumulative minutes of 50 Hz target data after each round. Two rounds
     # (3.6 and 4.9 min on 2 cores with the wide model) keep the whole run at ~21 min
     # (README, recipe section); --budgets-min 1 2 4 8 for the curve.
@@ -363,7 +373,8 @@ class Config:
                        "reward_upright_power")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
                        "model_history", "model_dynamics_hidden", "model_latent_dim", "threads",
-                       "ensemble_jobs",
+                       "ensemble_jobs", "collect_planner_samples",
+                       "collect_planner_iterations", "collect_planner_elites",
                        "finetune_reward_weight", "finetune_value_weight",
                        "finetune_priority_alpha", "finetune_priority_beta",
                        "finetune_sim_fraction", allow_zero=True)
@@ -407,6 +418,7 @@ class Config:
             check(len(set(self.model_ignored_observations)) < len(names),
                   "model_ignored_observations", "would hide every observation group")
         check_builds("planner_*", self.planner)
+        check_builds("collect_planner_*", self.collect_planner)
         check_builds("dataset_*", dataset_config, self)
         check_builds("device", resolve_device, self.device)
         check(self.logger in LOGGERS, "logger", f"must be one of {LOGGERS}, got {self.logger!r}")
@@ -429,6 +441,14 @@ class Config:
                              latency_compensation=self.planner_latency_compensation,
                              proposal_commands=self.planner_proposal_commands,
                              precision=self.planner_precision)
+
+    def collect_planner(self) -> PlannerConfig:
+        """The planner that collects target data: :meth:`planner` with the
+        ``collect_planner_*`` fields that are set (non-zero) in place of its own."""
+        search = {"num_samples": self.collect_planner_samples,
+                  "iterations": self.collect_planner_iterations,
+                  "num_elites": self.collect_planner_elites}
+        return dataclasses.replace(self.planner(), **{k: v for k, v in search.items() if v})
 
 
 PRESETS = {
@@ -764,7 +784,7 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
                              upside_down_termination=(UPSIDE_DOWN if cfg.collect_reset_upside_down
                                                       else None))
         spec = env.action_spec
-        policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(),
+        policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.collect_planner(),
                               seed=seed + start)
         batches.append(rollout(env, policy, cfg.episode_steps, desc=f"collect in {cfg.target}")
                        .select(*TARGET_KEYS))
