@@ -207,7 +207,9 @@ class Config:
     # processes that pretrain (and each round finetune) the K members side by side (0: as
     # many as the torch threads allow, one thread or more each; 1: one after the other in
     # this process). Small models use two threads poorly, so two one-thread processes
-    # train two members in ~1.2x one member's time (benchmarks/parallel_members.py). A
+    # train two members in 1.2-1.45x one member's time, depending on the host
+    # (benchmarks/parallel_members.py; benchmarks/README.md, "Two members of half the
+    # updates"). A
     # member's weights depend on its seed and thread count only, so this changes no
     # figure beyond what --threads does. Not part of the results.
     ensemble_jobs: int = 0
