@@ -139,6 +139,24 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     assert "has no result for ['slippery_slope']" in refused.stderr
 
 
+def test_a_stage_record_naming_the_shipped_expert_relatively_runs_from_any_directory(
+        tmp_path, monkeypatch, capsys):
+    """results/ records name the committed expert as checkpoints/quadruped_expert/expert.pt
+    (relative to the repository root); a run folder rebuilt from them must not depend on
+    the working directory."""
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    (out / "stages").mkdir(parents=True)
+    elsewhere.mkdir()
+    (out / "stages" / "expert.json").write_text(json.dumps(
+        {"result": {"path": "checkpoints/quadruped_expert/expert.pt"}, "seconds": 0.0}))
+    monkeypatch.chdir(elsewhere)
+    proc = _run_here("--preset", "tiny", "--output-dir", out, "--threads", 1, "--no-record",
+                     "--budgets-min", "0.02", capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    assert "stage expert: already done" in proc.stdout
+    assert (out / "stages" / "pretrain.json").exists()  # the stage that reads the expert
+
+
 def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert, capsys):
     # (without the recordings: they come after the rounds and are checked below)
     args = ("--preset", "tiny", "--expert", tiny_expert, "--no-record", "--output-dir", tmp_path)

@@ -1040,6 +1040,10 @@ def run(cfg: Config) -> dict:
         return runner.run(name, fn)
 
     expert = stage("expert", lambda d: expert_stage(cfg, d))
+    # a record copied from results/ names the shipped expert relative to the repository
+    # root (checkpoints/quadruped_expert/expert.pt), which only resolve_expert finds from
+    # any working directory
+    expert = {**expert, "path": str(resolve_expert(expert["path"]))}
     expert_zero_shot = stage("expert_zero_shot",
                              lambda d: expert_zero_shot_stage(cfg, expert["path"]))
     missing = [t for t in cfg.expert_targets if t not in expert_zero_shot]
