@@ -113,7 +113,9 @@ def main(argv=None) -> None:
 
 
 def read_expert(run: str) -> str:
-    return recipe.read_json(Path(run) / "stages" / "expert.json", "expert record")["result"]["path"]
+    # a results/ record names the shipped expert relative to the repository root
+    return str(recipe.resolve_expert(
+        recipe.read_json(Path(run) / "stages" / "expert.json", "expert record")["result"]["path"]))
 
 
 if __name__ == "__main__":

@@ -609,6 +609,11 @@ def term_shares(metrics: dict) -> dict:
     return {k: v / total for k, v in terms.items()}
 
 
+def member_dir(stage_dir: Path, i: int) -> Path:
+    """Member ``i``'s pretraining folder (member 0: the stage folder itself)."""
+    return stage_dir if i == 0 else stage_dir / f"member_{i}"
+
+
 def pretrain_member(cfg: Config, buffer, data, expert_path: str, stage_dir: Path, i: int,
                     logger=None) -> tuple[SimDistAgent, list[dict]]:
     """Member ``i`` of the pretrained ensemble (member 0: the single model of K = 1, its
@@ -620,19 +625,18 @@ def pretrain_member(cfg: Config, buffer, data, expert_path: str, stage_dir: Path
     agent = new_agent(cfg, obs.shape[-1], data["action"].shape[-1], dynamics_members=shared)
     flat = obs.reshape(-1, obs.shape[-1])
     agent.world_model.encoder.set_normalisation(flat.mean(0), flat.std(0))
-    member = "" if i == 0 else f"member_{i}/"
-    if member:
-        (stage_dir / member).mkdir(parents=True, exist_ok=True)
+    folder = member_dir(stage_dir, i)
+    folder.mkdir(parents=True, exist_ok=True)
     history = train_resumable(
         agent.pretrain_update, lambda: buffer.sample().reshape(-1, cfg.slice_len),
         cfg.pretrain_updates, {"world_model": agent.world_model, "optim": agent.pretrain_optim,
                                **({"extra_dynamics": agent.pretrain_loss.extra_dynamics}
                                   if shared > 1 else {})},
-        stage_dir / member / "training.pt",
+        folder / "training.pt",
         desc="pretrain world model" + (f" (member {i})" if i else ""),
         seed=stage_seed(cfg.seed, "pretrain" if i == 0 else f"pretrain/member_{i}"),
         logger=logger, log_prefix="pretrain" if i == 0 else f"pretrain/member_{i}")
-    save_atomic(agent.world_model.state_dict(), stage_dir / member / "world_model.pt")
+    save_atomic(agent.world_model.state_dict(), folder / "world_model.pt")
     return agent, history
 
 
@@ -654,7 +658,7 @@ def pretrain_member_job(cfg: Config, dataset: str, expert_path: str, stage_dir: 
     as :func:`pretrain_stage` sets it for member 0, so every member trains as it would in
     the stage's own process; its weights go to its stage folder. Returns its history and
     how many of those updates its checkpoint already held."""
-    done = updates_done(stage_dir / ("" if i == 0 else f"member_{i}") / "training.pt")
+    done = updates_done(member_dir(stage_dir, i) / "training.pt")
     torch.manual_seed(cfg.seed)
     buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
     return pretrain_member(cfg, buffer, buffer[:], expert_path, stage_dir, i)[1], done
@@ -686,7 +690,7 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
     agent_file = save_agent(cfg, agent, stage_dir / "agent.pt")
     members = [str(stage_dir / "world_model.pt")]
     for i in range(1, cfg.ensemble_size):
-        path = stage_dir / f"member_{i}" / "world_model.pt"
+        path = member_dir(stage_dir, i) / "world_model.pt"
         if cfg.ensemble_shared_encoder:  # trained above: member 0's parts, dynamics i
             path.parent.mkdir(parents=True, exist_ok=True)
             save_atomic(agent.members()[i].state_dict(), path)
