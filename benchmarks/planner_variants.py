@@ -11,6 +11,10 @@ variants given as ``name:field=value,field=value`` (fields of ``PlannerConfig``)
         --variant "recipe:" --variant "pi50:policy_fraction=0.5" --variant "std05:init_std=0.5"
 
 The recipe's planner (``recipe:``) is every variant's base; a variant overrides fields.
+With an ensemble (several ``--weights``), the pseudo-field ``member0_parts`` (a JSON list
+of ``reward``, ``value``, ``prior``) takes those parts from member 0 alone, on member 0's
+latent, instead of the members' mean: which averaged part carries an ensemble's gain
+(``--variant 'meanvalue:member0_parts=["reward","prior"]'``).
 
 ``--against RUN/stages/round_2.json`` pairs each variant, episode by episode, with the
 recipe's own evaluation of SimDist in that round (same worlds: evaluate the round's
@@ -45,6 +49,7 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
 
 from simdist.envs import get_target
+from simdist.modules import WorldModelEnsemble
 from simdist.recipes import simdist_quadruped as recipe
 from simdist.pipelines import episode_stats, locomotion_env, rollout
 from simdist.pipelines.statistics import summarise, summarise_groups
@@ -89,6 +94,44 @@ class PriorPolicy(torch.nn.Module):
         low, high = self.inner.planner.action_low, self.inner.planner.action_high
         # what was sent, also as the next step's previous action / newest action in flight
         return self.inner.replace_action(td, torch.maximum(torch.minimum(action, high), low))
+
+
+class FirstMember(torch.nn.Module):
+    """Member 0's part of an ensemble part (``WorldModelEnsemble.reward_head`` etc.) on
+    member 0's slice of the ensemble latent; the other members' slices are ignored."""
+
+    def __init__(self, per_member):
+        super().__init__()
+        self.part, self.member_dim = per_member.parts[0], per_member.member_dim
+        self.latent_dim = per_member.latent_dim
+
+    def forward(self, latent, *rest):
+        return self.part(latent[..., :self.member_dim], *rest)
+
+
+ENSEMBLE_PARTS = {"reward": "reward_head", "value": "value_head", "prior": "policy_head"}
+
+
+def with_member0_parts(model, parts) -> dict:
+    """Swaps ``parts`` of the ensemble ``model`` for member 0's (:class:`FirstMember`) and
+    returns the swapped-out modules, so that :func:`restore_parts` puts them back."""
+    unknown = set(parts) - set(ENSEMBLE_PARTS)
+    if unknown:
+        raise ValueError(f"member0_parts: unknown part(s) {sorted(unknown)}; "
+                         f"choose from {sorted(ENSEMBLE_PARTS)}")
+    if parts and not isinstance(model, WorldModelEnsemble):
+        raise ValueError("member0_parts needs an ensemble: give several --weights")
+    swapped = {}
+    for part in parts:
+        attribute = ENSEMBLE_PARTS[part]
+        swapped[attribute] = getattr(model, attribute)
+        setattr(model, attribute, FirstMember(swapped[attribute]))
+    return swapped
+
+
+def restore_parts(model, swapped: dict) -> None:
+    for attribute, module in swapped.items():
+        setattr(model, attribute, module)
 
 
 def recipe_evaluation(record: str | Path, domain: str) -> dict:
@@ -189,6 +232,9 @@ def main(argv=None):
     print("| --- | --- | --- | --- |")
     saved = {}
     for name, overrides in variants:
+        overrides = dict(overrides) if overrides is not None else None
+        swapped = with_member0_parts(agent.world_model,
+                                     (overrides or {}).pop("member0_parts", []))
         planner = dataclasses.replace(cfg.planner(), **(overrides or {}))
         for domain in args.domains:
             start = time.perf_counter()
@@ -219,6 +265,7 @@ def main(argv=None):
             if against is not None:
                 diff, speeds = paired_rows(saved[name][domain], against[domain])
                 _print_paired(name, [diff], [speeds])
+        restore_parts(agent.world_model, swapped)
 
 
 if __name__ == "__main__":

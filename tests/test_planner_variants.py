@@ -66,3 +66,27 @@ def test_a_record_without_the_domain_fails_before_any_evaluation(tmp_path):
     with pytest.raises(ValueError, match="no SimDist evaluation in 'foam'"):
         module.main(["--run", str(tmp_path / "no_run_here"), "--against", str(zero_shot),
                      "--domains", "foam"])
+
+
+def test_member0_parts_score_with_member_0_alone_and_are_restored():
+    import torch
+    from simdist.modules import SimDistWorldModel, WorldModelEnsemble
+    module = benchmark_module("planner_variants")
+    torch.manual_seed(0)
+    members = [SimDistWorldModel.build(10, 3, size="tiny") for _ in range(2)]
+    ensemble = WorldModelEnsemble(members)
+    z = ensemble.encode(torch.randn(4, 2, 10))
+    a = torch.rand(4, 3) * 2 - 1
+    L = members[0].latent_dim
+    mean_value, mean_reward = ensemble.value(z), ensemble.reward(z, a)
+    swapped = module.with_member0_parts(ensemble, ["value", "prior"])
+    assert torch.allclose(ensemble.value(z), members[0].value(z[..., :L]))
+    assert torch.allclose(ensemble.policy(z), members[0].policy(z[..., :L]))
+    assert torch.allclose(ensemble.reward(z, a), mean_reward)  # not swapped: still the mean
+    assert not torch.allclose(ensemble.value(z), mean_value)
+    module.restore_parts(ensemble, swapped)
+    assert torch.allclose(ensemble.value(z), mean_value)
+    with pytest.raises(ValueError, match="unknown part"):
+        module.with_member0_parts(ensemble, ["dynamics"])
+    with pytest.raises(ValueError, match="needs an ensemble"):
+        module.with_member0_parts(members[0], ["value"])
