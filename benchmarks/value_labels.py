@@ -41,6 +41,21 @@ the new value head) for ``benchmarks/planner_variants.py --weights``.
     python benchmarks/value_labels.py refit --run RUN --base RUN/stages/round_2/simdist.pt \\
         --out refit.pt
     python benchmarks/planner_variants.py --run RUN --weights refit.pt --domains slippery_slope
+
+``heads`` asks whether one model's planner gains from a mean of value heads, as two
+pretrained models planned together do from their mean terminal value
+(benchmarks/README.md, "Which part of two members carries the gain"): it fits
+``--heads`` more value heads on the same labels (the critic's) and latents as pretraining
+(``z^_{t+i}``, ``i = 0..H``, every other part frozen), each from a fresh initialisation and
+on its own bootstrap resample of the dataset's episodes, prints their held-out R^2 and
+how far they disagree with the pretrained head on the dataset and on ``--data`` (target
+steps, where the planner needs them), then plans in ``--target`` with ``--weights`` (e.g.
+a round's finetuned model) scoring by the heads' mean, on the run's evaluation worlds,
+and saves per-episode fractions as ``planner_variants.py --save-json`` does (pair them
+with ``planner_variants.py --pool FILE=RUN/stages/round_2.json``):
+
+    python benchmarks/value_labels.py heads --run RUN --weights RUN/stages/round_2/simdist.pt \
+        --data RUN/stages/round_2/data --heads 2 --save-json heads_s0.json
 """
 
 from __future__ import annotations
@@ -336,6 +351,98 @@ def refit(run: Path, base: str | None, out: Path, iterations: int, updates: int,
     print(f"wrote {out}")
 
 
+class MeanOfHeads(torch.nn.Module):
+    """The mean of several scalar heads' outputs (a value-head ensemble on one latent)."""
+
+    def __init__(self, heads):
+        super().__init__()
+        self.heads = torch.nn.ModuleList(heads)
+
+    def forward(self, *inputs):
+        return torch.stack([h(*inputs) for h in self.heads]).mean(0)
+
+
+def _fresh_copy(module: torch.nn.Module) -> torch.nn.Module:
+    copy = __import__("copy").deepcopy(module)
+    for layer in copy.modules():
+        if hasattr(layer, "reset_parameters"):
+            layer.reset_parameters()
+    return copy
+
+
+def heads(run: Path, weights: str | None, folders: list[Path], count: int, episodes: int,
+          updates: int, batch: int, lr: float, seed: int, target: str | None,
+          save_json: Path | None) -> None:
+    cfg, agent, data = _run(run)
+    torch.manual_seed(seed)
+    wm, horizon = agent.world_model, cfg.model_horizon
+    rows = torch.randperm(data.shape[0])[:episodes].sort().values
+    data = data[rows]
+    B, T = data.shape
+    z = _encode(wm, data)
+    start = 0
+    with torch.no_grad():  # the latents the pretraining loss trains V on: z^_{t+i}, i = 0..H
+        windows = data["action"].float().unfold(1, horizon, 1)[:, start:T - horizon]
+        path = torch.cat([z[:, start:T - horizon, None],
+                          wm.rollout(z[:, start:T - horizon], windows.transpose(-1, -2))], 2)
+    labels = data["value_target"].reshape(B, T).float().unfold(1, horizon + 1, 1)[:, start:]
+    steps = path.shape[1]
+    heldout = torch.zeros(B, dtype=torch.bool)
+    heldout[torch.randperm(B)[:max(1, B // 10)]] = True
+    train = (~heldout).nonzero().squeeze(-1)
+    new = []
+    for k in range(count):
+        head = _fresh_copy(wm.value_head)
+        last = [m for m in head.modules() if isinstance(m, torch.nn.Linear)][-1]
+        with torch.no_grad():  # start at the labels' mean: they sit far from 0 (~80)
+            last.bias.fill_(labels[train].mean())
+        optim = torch.optim.Adam(head.parameters(), lr=lr)
+        resample = train[torch.randint(len(train), (len(train),))]  # this head's bootstrap
+        for _ in range(updates):
+            r = resample[torch.randint(len(resample), (batch,))]
+            t = torch.randint(steps, (batch,))
+            loss = (head(path[r, t]).squeeze(-1) - labels[r, t]).pow(2).mean()
+            optim.zero_grad()
+            loss.backward()
+            optim.step()
+        new.append(head.requires_grad_(False))
+    all_heads = [wm.value_head, *new]
+    with torch.no_grad():
+        x, y = path[heldout, :, 0], labels[heldout, :, 0]
+        values = [h(x).squeeze(-1) for h in all_heads]
+        for name, v in [*zip(["pretrained", *[f"new {k}" for k in range(count)]], values),
+                        ("mean", torch.stack(values).mean(0))]:
+            print(f"held-out episodes, {name} head: R^2 {1 - (v - y).pow(2).mean() / y.var():.3f}")
+        residuals = [(v - y).flatten() for v in values]
+        for k in range(count):
+            c = torch.corrcoef(torch.stack([residuals[0], residuals[k + 1]]))[0, 1]
+            print(f"  residual correlation, pretrained vs new {k}: {c:.2f}")
+        for folder in folders:
+            td = load_memmap(folder)
+            zt = _encode(wm, td.reshape(-1, *td.shape[-1:]) if td.ndim > 2 else td)
+            v = torch.stack([h(zt).squeeze(-1) for h in all_heads])
+            print(f"{folder}: V per head {[round(x, 1) for x in v.mean((1, 2)).tolist()]}; "
+                  f"mean |new - pretrained| {(v[1:] - v[0]).abs().mean():.2f}, "
+                  f"spread over heads (std) {v.std(0).mean():.2f}")
+    if not target:
+        return
+    agent = recipe.load_agent(cfg, recipe.load_finished_run(run)[1], weights)
+    saved = {}
+    for name, chosen in (("meanheads", [agent.world_model.value_head, *new]),
+                         ("newheads", new)):
+        original = agent.world_model.value_head
+        agent.world_model.value_head = MeanOfHeads(chosen)
+        stats, _ = recipe.evaluate_planner(cfg, agent, target)
+        agent.world_model.value_head = original
+        saved[name] = {target: [float(f) for f in stats["fraction"]]}
+        low, high = stats["ci_fraction"]
+        print(f"{name} ({len(chosen)} heads) in {target}: {100 * stats['mean_fraction']:.0f}% "
+              f"[{100 * low:.0f}, {100 * high:.0f}], {sum(stats['upside_down'])} on its back",
+              flush=True)
+        if save_json:
+            save_json.write_text(__import__("json").dumps(saved, indent=1))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -369,6 +476,21 @@ def main(argv=None):
     r.add_argument("--batch", type=int, default=256)
     r.add_argument("--lr", type=float, default=3e-4)
     r.add_argument("--seed", type=int, default=0)
+    h = sub.add_parser("heads", help="plan with the mean of several value heads")
+    h.add_argument("--run", required=True, type=Path)
+    h.add_argument("--weights", default=None, help="the planner's world model (default: "
+                   "pretrained); the pretrained model's latents train the heads")
+    h.add_argument("--data", nargs="*", default=[], type=Path,
+                   help="target-data folders to measure the heads' disagreement on")
+    h.add_argument("--heads", type=int, default=1, help="new heads beside the pretrained one")
+    h.add_argument("--episodes", type=int, default=512, help="dataset episodes to fit on")
+    h.add_argument("--updates", type=int, default=3000)
+    h.add_argument("--batch", type=int, default=256)
+    h.add_argument("--lr", type=float, default=3e-4)
+    h.add_argument("--seed", type=int, default=0)
+    h.add_argument("--target", default="slippery_slope",
+                   help="plan there with the heads' mean (the run's evaluation worlds); \"\": do not plan")
+    h.add_argument("--save-json", type=Path, default=None)
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     if args.command == "audit":
@@ -377,6 +499,9 @@ def main(argv=None):
         foresee(args.run, args.data, args.weights, args.steps_before)
     elif args.command == "bias":
         bias(args.run, args.data, args.weights, args.horizon)
+    elif args.command == "heads":
+        heads(args.run, args.weights, args.data, args.heads, args.episodes, args.updates,
+              args.batch, args.lr, args.seed, args.target, args.save_json)
     else:
         refit(args.run, args.base, args.out, args.iterations, args.updates, args.batch,
               args.lr, args.seed)
