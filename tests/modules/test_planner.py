@@ -59,6 +59,28 @@ def test_terminal_value_is_used():
     torch.testing.assert_close(*plans)
 
 
+def test_value_lambda_scores_a_lambda_return_computed_by_hand():
+    # z_t = t (+1 per step), r_t = 1, V(z) = 10 z: with H = 2, gamma = 0.5, lambda = 0.25,
+    # value_weight = 2: G_2 = 2 V(2) = 40; G_1 = 1 + 0.5 (0.75 * 2 V(2) + 0.25 G_2) = 21;
+    # G_0 = 1 + 0.5 (0.75 * 2 V(1) + 0.25 G_1) = 1 + 0.5 (15 + 5.25) = 11.125.
+    def planner(lam):
+        return LatentMPPIPlanner(lambda z, a: z + 1, lambda z, a: torch.ones_like(z),
+                                 lambda z: 10 * z, action_dim=1, seed=0,
+                                 config=PlannerConfig(horizon=2, num_samples=4, num_elites=2,
+                                                      gamma=0.5, value_weight=2.0,
+                                                      value_lambda=lam))
+    actions = torch.zeros(1, 3, 2, 1)
+    scores, rewards, values = planner(0.25)._evaluate(torch.zeros(1, 1), actions)
+    torch.testing.assert_close(scores, torch.full((1, 3), 11.125))
+    torch.testing.assert_close(values, torch.full((1, 3), 20.0))  # still the terminal V
+    # lambda = 1 is the terminal-value score: 1 + 0.5 + 0.25 * 2 * 20 = 11.5
+    torch.testing.assert_close(planner(1.0)._evaluate(torch.zeros(1, 1), actions)[0],
+                               torch.full((1, 3), 11.5))
+    # lambda = 0: one-step bootstraps only: G_0 = 1 + 0.5 * 2 V(1) = 11
+    torch.testing.assert_close(planner(0.0)._evaluate(torch.zeros(1, 1), actions)[0],
+                               torch.full((1, 3), 11.0))
+
+
 def test_warm_start_shifts_the_previous_plan_and_resets_per_env():
     cfg = PlannerConfig(horizon=4, num_samples=32, num_elites=4, iterations=1)
     planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -(a - 0.5).pow(2), None, 1, cfg, seed=0)
@@ -128,6 +150,8 @@ def test_accepts_tensordict_modules_and_unbatched_latents():
     (dict(action_low=1.0, action_high=-1.0), "action bounds inverted"),
     (dict(value_weight=-0.5), "value_weight must be >= 0"),
     (dict(noise_beta=-1.0), "noise_beta must be >= 0"),
+    (dict(value_lambda=1.5), "value_lambda must lie in"),
+    (dict(value_lambda=math.nan), "value_lambda must be a finite number"),
     (dict(noise_beta=math.nan), "noise_beta must be a finite number"),
     (dict(precision="float16"), "precision must be one of"),
 ])
