@@ -250,6 +250,10 @@ class Config:
     # (slippery_slope, 3 seeds, 8 min): 28% [21, 35] vs 31% [26, 37], paired -3 [-12, 5]
     # (benchmarks/README.md, "Which candidates should the planner compare").
     planner_policy_noise_steps: int = 0
+    # latent MPPI: a candidate's score mixes the values read along its plan, a
+    # lambda-return (PlannerConfig.value_lambda; 1: the terminal value alone, as the
+    # reference). LAMBDA_NOTE
+    planner_value_lambda: float = 1.0
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
     # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
@@ -440,6 +444,7 @@ class Config:
                              policy_fraction=self.planner_policy_fraction,
                              policy_noise=self.planner_policy_noise,
                              policy_noise_steps=self.planner_policy_noise_steps,
+                             value_lambda=self.planner_value_lambda,
                              latency_compensation=self.planner_latency_compensation,
                              proposal_commands=self.planner_proposal_commands,
                              precision=self.planner_precision)
