@@ -252,7 +252,10 @@ class Config:
     planner_policy_noise_steps: int = 0
     # latent MPPI: a candidate's score mixes the values read along its plan, a
     # lambda-return (PlannerConfig.value_lambda; 1: the terminal value alone, as the
-    # reference). LAMBDA_NOTE
+    # reference). 0.95 on fixed 8-minute models (slippery_slope, four one-model bases,
+    # paired): +8 [+4, +13] points of the commanded distance, at ~1.4x a planner call
+    # (benchmarks/README.md, "Which part of two members carries the gain"); not yet run
+    # through the recipe, so off.
     planner_value_lambda: float = 1.0
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
