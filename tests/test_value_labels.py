@@ -54,3 +54,16 @@ def test_upright_windows_come_from_episodes_that_never_tip():
     assert at == [(0, 0), (0, 10), (0, 20), (2, 0)]
     assert module.upright_windows(until, init, horizon=10, every=10, first=5) == [
         (0, 5), (0, 15)]
+
+
+def test_mean_of_heads_averages_and_fresh_copies_start_elsewhere():
+    import torch
+    from simdist.modules.heads import ScalarHead
+    module = benchmark_module("value_labels")
+    torch.manual_seed(0)
+    head = ScalarHead(6, hidden=8)
+    fresh = module._fresh_copy(head)
+    x = torch.randn(5, 6)
+    assert not torch.allclose(fresh(x), head(x))  # re-initialised, not a copy
+    assert head.net[0].weight.data_ptr() != fresh.net[0].weight.data_ptr()
+    torch.testing.assert_close(module.MeanOfHeads([head, fresh])(x), (head(x) + fresh(x)) / 2)
