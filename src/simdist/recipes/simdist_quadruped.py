@@ -252,8 +252,8 @@ class Config:
     planner_policy_noise_steps: int = 0
     # latent MPPI: a candidate's score mixes the values read along its plan, a
     # lambda-return (PlannerConfig.value_lambda; 1: the terminal value alone, as the
-    # reference). 0.95 on fixed 8-minute models (slippery_slope, four one-model bases,
-    # paired): +8 [+4, +13] points of the commanded distance, at ~1.4x a planner call
+    # reference). 0.95 on fixed 8-minute models (slippery_slope, six one-model bases,
+    # paired): +11 [+8, +14] points of the commanded distance, at ~1.4x a planner call
     # (benchmarks/README.md, "Which part of two members carries the gain"); not yet run
     # through the recipe, so off.
     planner_value_lambda: float = 1.0
