@@ -66,8 +66,9 @@ class PlannerConfig:
     # scores with TDLambdaEstimator and Dreamer's critic learns): G_H = V(z_H), G_t = r_t +
     # gamma ((1 - lambda) V(z_t+1) + lambda G_t+1), each V times value_weight. 1: the
     # terminal value alone (the reference). Below 1 the score leans on values read after
-    # fewer predicted steps, whose latents carry less compounded model error; it costs one
-    # value-head call per step instead of one per candidate.
+    # fewer predicted steps, whose latents carry less compounded model error; it costs a
+    # value-head call per predicted step instead of one at the end (intermediate values at
+    # the rollout's precision, see _rollout).
     value_lambda: float = 1.0
     # Temporal colour of the sampling noise along the horizon (iCEM, Pinneri et al. 2020):
     # its power spectrum falls as 1/f^noise_beta. 0: white noise, every step drawn on its
