@@ -254,8 +254,9 @@ class Config:
     # lambda-return (PlannerConfig.value_lambda; 1: the terminal value alone, as the
     # reference). 0.95 on fixed 8-minute models (slippery_slope, six one-model bases,
     # paired): +11 [+8, +14] points of the commanded distance, at ~1.4x a planner call
-    # (benchmarks/README.md, "Which part of two members carries the gain"); not yet run
-    # through the recipe, so off.
+    # (benchmarks/README.md, "Which part of two members carries the gain"); through the
+    # recipe, seeds 3 and 4: 72% against 60% at 8 minutes (paired +12 [+4, +20]). Two seeds
+    # and ~1.4x planner time: not yet the default.
     planner_value_lambda: float = 1.0
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
