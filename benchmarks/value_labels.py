@@ -61,6 +61,8 @@ with ``planner_variants.py --pool FILE=RUN/stages/round_2.json``):
 from __future__ import annotations
 
 import argparse
+import copy
+import json
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +137,18 @@ def _encode(world_model, td, chunk: int = 64) -> torch.Tensor:
         return torch.cat([world_model.encode_sequence(obs[i:i + chunk], init[i:i + chunk],
                                                       act[i:i + chunk])
                           for i in range(0, td.shape[0], chunk)])
+
+
+def _pretraining_latents(world_model, z: torch.Tensor, actions: torch.Tensor,
+                         horizon: int) -> torch.Tensor:
+    """The latents the pretraining loss trains V on, ``z^_{t+i}``, ``i = 0..H``: every
+    encoded ``z_t`` (``[B, T, L]``) with ``H`` steps after it, rolled along the recorded
+    ``actions`` (``[B, T, A]``); ``[B, T - H, H + 1, L]``."""
+    T = z.shape[1]
+    with torch.no_grad():
+        start = z[:, :T - horizon]
+        windows = actions.unfold(1, horizon, 1)[:, :T - horizon].transpose(-1, -2)  # [B, S, H, A]
+        return torch.cat([start.unsqueeze(2), world_model.rollout(start, windows)], 2)
 
 
 def _open_loop(world_model, z: torch.Tensor, at, actions: torch.Tensor) -> torch.Tensor:
@@ -316,11 +330,7 @@ def refit(run: Path, base: str | None, out: Path, iterations: int, updates: int,
     if not (data["is_init"].reshape(B, T)[:, 0].all() and not data["is_init"].reshape(B, T)[:, 1:].any()):
         raise ValueError("refit reads one episode per dataset row")
     z = _encode(wm, data)
-    actions = data["action"].float()
-    with torch.no_grad():  # the latents the pretraining loss trains V on: z^_{t+i}, i = 0..H
-        start = z[:, :T - horizon]
-        windows = actions.unfold(1, horizon, 1)[:, :T - horizon].transpose(-1, -2)  # [B, S, H, A]
-        path = torch.cat([start.unsqueeze(2), wm.rollout(start, windows)], 2)
+    path = _pretraining_latents(wm, z, data["action"].float(), horizon)
     reward = data["next", "reward"].reshape(B, T).double()
     bootstrap = data["value_target"].reshape(B, T)[:, -1].double()
     heldout = torch.zeros(B, dtype=torch.bool)
@@ -363,11 +373,11 @@ class MeanOfHeads(torch.nn.Module):
 
 
 def _fresh_copy(module: torch.nn.Module) -> torch.nn.Module:
-    copy = __import__("copy").deepcopy(module)
-    for layer in copy.modules():
+    fresh = copy.deepcopy(module)
+    for layer in fresh.modules():
         if hasattr(layer, "reset_parameters"):
             layer.reset_parameters()
-    return copy
+    return fresh
 
 
 def heads(run: Path, weights: str | None, folders: list[Path], count: int, episodes: int,
@@ -379,13 +389,8 @@ def heads(run: Path, weights: str | None, folders: list[Path], count: int, episo
     rows = torch.randperm(data.shape[0])[:episodes].sort().values
     data = data[rows]
     B, T = data.shape
-    z = _encode(wm, data)
-    start = 0
-    with torch.no_grad():  # the latents the pretraining loss trains V on: z^_{t+i}, i = 0..H
-        windows = data["action"].float().unfold(1, horizon, 1)[:, start:T - horizon]
-        path = torch.cat([z[:, start:T - horizon, None],
-                          wm.rollout(z[:, start:T - horizon], windows.transpose(-1, -2))], 2)
-    labels = data["value_target"].reshape(B, T).float().unfold(1, horizon + 1, 1)[:, start:]
+    path = _pretraining_latents(wm, _encode(wm, data), data["action"].float(), horizon)
+    labels = data["value_target"].reshape(B, T).float().unfold(1, horizon + 1, 1)
     steps = path.shape[1]
     heldout = torch.zeros(B, dtype=torch.bool)
     heldout[torch.randperm(B)[:max(1, B // 10)]] = True
@@ -418,8 +423,7 @@ def heads(run: Path, weights: str | None, folders: list[Path], count: int, episo
             c = torch.corrcoef(torch.stack([residuals[0], residuals[k + 1]]))[0, 1]
             print(f"  residual correlation, pretrained vs new {k}: {c:.2f}")
         for folder in folders:
-            td = load_memmap(folder)
-            zt = _encode(wm, td.reshape(-1, *td.shape[-1:]) if td.ndim > 2 else td)
+            zt = _encode(wm, load_memmap(folder)[:, :])
             v = torch.stack([h(zt).squeeze(-1) for h in all_heads])
             print(f"{folder}: V per head {[round(x, 1) for x in v.mean((1, 2)).tolist()]}; "
                   f"mean |new - pretrained| {(v[1:] - v[0]).abs().mean():.2f}, "
@@ -440,7 +444,7 @@ def heads(run: Path, weights: str | None, folders: list[Path], count: int, episo
               f"[{100 * low:.0f}, {100 * high:.0f}], {sum(stats['upside_down'])} on its back",
               flush=True)
         if save_json:
-            save_json.write_text(__import__("json").dumps(saved, indent=1))
+            save_json.write_text(json.dumps(saved, indent=1))
 
 
 def main(argv=None):
