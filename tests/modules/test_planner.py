@@ -81,6 +81,32 @@ def test_value_lambda_scores_a_lambda_return_computed_by_hand():
                                torch.full((1, 3), 11.0))
 
 
+def test_value_every_reads_every_kth_value_with_lambda_to_the_k():
+    # z_t = t, r_t = 1, V(z) = 10 z, H = 3, gamma = 0.5, value_weight = 2, lambda = 0.5,
+    # k = 2: values at z_2 only (mixed with lambda^2 = 0.25) and the terminal one:
+    # G_3 = 2 V(3) = 60; G_2 = 1 + 0.5 G_3 = 31; G_1 = 1 + 0.5 (0.75 * 2 V(2) + 0.25 G_2)
+    # = 19.875; G_0 = 1 + 0.5 G_1 = 10.9375.
+    def planner(lam, every):
+        return LatentMPPIPlanner(lambda z, a: z + 1, lambda z, a: torch.ones_like(z),
+                                 lambda z: 10 * z, action_dim=1, seed=0,
+                                 config=PlannerConfig(horizon=3, num_samples=4, num_elites=2,
+                                                      gamma=0.5, value_weight=2.0,
+                                                      value_lambda=lam, value_every=every))
+    actions, start = torch.zeros(1, 3, 3, 1), torch.zeros(1, 1)
+    torch.testing.assert_close(planner(0.5, 2)._evaluate(start, actions)[0],
+                               torch.full((1, 3), 10.9375))
+    # every step (k = 1): G_2 = 31; G_1 = 1 + 0.5 (0.5 * 40 + 0.5 * 31) = 18.75;
+    # G_0 = 1 + 0.5 (0.5 * 20 + 0.5 * 18.75) = 10.6875
+    torch.testing.assert_close(planner(0.5, 1)._evaluate(start, actions)[0],
+                               torch.full((1, 3), 10.6875))
+    # k >= H reads no value along the plan: the terminal-value score 1.75 + 0.125 * 60
+    for every in (3, 7):
+        torch.testing.assert_close(planner(0.5, every)._evaluate(start, actions)[0],
+                                   planner(1.0, 1)._evaluate(start, actions)[0])
+    torch.testing.assert_close(planner(1.0, 1)._evaluate(start, actions)[0],
+                               torch.full((1, 3), 9.25))
+
+
 def test_warm_start_shifts_the_previous_plan_and_resets_per_env():
     cfg = PlannerConfig(horizon=4, num_samples=32, num_elites=4, iterations=1)
     planner = LatentMPPIPlanner(lambda z, a: z, lambda z, a: -(a - 0.5).pow(2), None, 1, cfg, seed=0)
@@ -151,6 +177,8 @@ def test_accepts_tensordict_modules_and_unbatched_latents():
     (dict(value_weight=-0.5), "value_weight must be >= 0"),
     (dict(noise_beta=-1.0), "noise_beta must be >= 0"),
     (dict(value_lambda=1.5), "value_lambda must lie in"),
+    (dict(value_every=0), "value_every must be >= 1"),
+    (dict(value_every=1.5), "value_every must be an integer"),
     (dict(value_lambda=math.nan), "value_lambda must be a finite number"),
     (dict(noise_beta=math.nan), "noise_beta must be a finite number"),
     (dict(precision="float16"), "precision must be one of"),

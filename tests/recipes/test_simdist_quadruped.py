@@ -368,6 +368,8 @@ def test_planner_flags_reach_the_planner_config():
     assert Config().planner().policy_noise_steps == 0  # noise on every step of the plan
     assert Config(planner_value_lambda=0.95).planner().value_lambda == 0.95
     assert Config().planner().value_lambda == 1.0  # the terminal value alone
+    assert Config(planner_value_every=2).planner().value_every == 2
+    assert Config().planner().value_every == 1
     assert Config(planner_precision="bfloat16").planner().precision == "bfloat16"
     # bfloat16 only where it is fast (simdist.utils.precision)
     assert Config().planner().precision == Config().mixed_precision == "auto"
@@ -416,6 +418,7 @@ def test_collection_plans_with_the_collection_planner_and_evaluation_with_the_pl
     (["--planner-elites", "100"], "num_elites (100) must be <= num_samples"),
     (["--planner-policy-noise-steps", "-1"], "policy_noise_steps must be >= 0"),
     (["--planner-value-lambda", "1.5"], "value_lambda must lie in"),
+    (["--planner-value-every", "0"], "value_every must be >= 1"),
     (["--collect-planner-elites", "100"], "num_elites (100) must be <= num_samples"),
     (["--collect-planner-samples", "-4"], "collect_planner_samples: must be >= 0"),
     (["--model-size", "huge"], "model_size: unknown size 'huge'"),

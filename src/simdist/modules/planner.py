@@ -70,6 +70,11 @@ class PlannerConfig:
     # value-head call per predicted step instead of one at the end (intermediate values at
     # the rollout's precision, see _rollout).
     value_lambda: float = 1.0
+    # Reads the lambda-return's values at every k-th predicted latent only (1: at each),
+    # mixing with lambda^k there, so each value carries the weight the every-step return
+    # spreads over the k latents up to it (the terminal value's weight is unchanged): the
+    # same geometric weighting in H / k value calls instead of H. Unused when lambda is 1.
+    value_every: int = 1
     # Temporal colour of the sampling noise along the horizon (iCEM, Pinneri et al. 2020):
     # its power spectrum falls as 1/f^noise_beta. 0: white noise, every step drawn on its
     # own (the reference); 2: smooth, low-frequency sequences; large: nearly one offset
@@ -101,7 +106,7 @@ class PlannerConfig:
 
     def __post_init__(self):
         for name in ("horizon", "num_samples", "iterations", "num_elites",
-                     "latency_compensation", "policy_noise_steps"):
+                     "latency_compensation", "policy_noise_steps", "value_every"):
             value = getattr(self, name)
             # bool is an int, and 2.5 would be truncated silently by the tensor shapes.
             if isinstance(value, bool) or not isinstance(value, numbers.Integral):
@@ -330,6 +335,9 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         total = torch.zeros(B * n, device=latent.device, dtype=latent.dtype)
         actions, rewards, latents = [], [], []
         mixed = self._value is not None and c.value_lambda < 1
+        # the latents z_j (j = t + 1 < H) whose values enter the lambda-return
+        read = [t for t in range(H - 1) if (t + 1) % c.value_every == 0] if mixed else []
+        values = {}
         for t in range(H):
             a = action_at(t, z)
             actions.append(a)
@@ -337,7 +345,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             rewards.append(r)
             total = total + (c.gamma ** t) * r
             z = self._dynamics(z, a)
-            if mixed:
+            if read and t in read:
                 latents.append(z)
         if self._value is not None:
             # The terminal value (~80 on the quadruped) decides most of the ranking, and
@@ -346,20 +354,23 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             # candidate against H of the dynamics and reward head).
             with torch.autocast(z.device.type, enabled=False):
                 value = self._value(z.float()).reshape(B * n).to(total.dtype)
-            if mixed:
-                # V(z_1) .. V(z_H-1) in one call at the rollout's precision: each weighs
-                # (1 - lambda) gamma^t, so bfloat16's rounding matters far less than on the
-                # terminal value, and a float32 call per step would double the planner's time.
-                values = [self._value(torch.stack(latents[:-1])).reshape(H - 1, B * n)
-                          .to(total.dtype)] if H > 1 else []
-                values = torch.cat([*values, value[None]])
+            if read:
+                # The values along the plan in one call at the rollout's precision: each
+                # weighs (1 - lambda) gamma^t, so bfloat16's rounding matters far less than
+                # on the terminal value, and a float32 call per step would double the
+                # planner's time.
+                values = self._value(torch.stack(latents)).reshape(len(read), B * n)
+                values = dict(zip(read, values.to(total.dtype)))
         else:
             value = torch.zeros_like(total)
         if mixed:  # the lambda-return, backwards from G_H = V(z_H)
-            lam, w = c.value_lambda, c.value_weight
+            lam, w = c.value_lambda ** c.value_every, c.value_weight
             total = w * value  # G_H; values[t] is V(z_t+1)
             for t in reversed(range(H)):
-                total = rewards[t] + c.gamma * ((1 - lam) * w * values[t] + lam * total)
+                if t in values:
+                    total = rewards[t] + c.gamma * ((1 - lam) * w * values[t] + lam * total)
+                else:  # no value read at z_t+1 (the terminal one, or between every k-th)
+                    total = rewards[t] + c.gamma * total
         else:
             total = total + c.value_weight * (c.gamma ** H) * value
         return (torch.stack(actions, 1).reshape(B, n, H, -1), total.reshape(B, n),

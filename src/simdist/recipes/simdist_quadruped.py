@@ -258,6 +258,10 @@ class Config:
     # recipe, seeds 3 and 4: 72% against 60% at 8 minutes (paired +12 [+4, +20]). Two seeds
     # and ~1.4x planner time: not yet the default.
     planner_value_lambda: float = 1.0
+    # the lambda-return's values at every k-th predicted step only, mixed with lambda^k
+    # (PlannerConfig.value_every; 1: at each step): the same weighting for fewer value-head
+    # calls.
+    planner_value_every: int = 1
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
     # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
@@ -449,6 +453,7 @@ class Config:
                              policy_noise=self.planner_policy_noise,
                              policy_noise_steps=self.planner_policy_noise_steps,
                              value_lambda=self.planner_value_lambda,
+                             value_every=self.planner_value_every,
                              latency_compensation=self.planner_latency_compensation,
                              proposal_commands=self.planner_proposal_commands,
                              precision=self.planner_precision)
