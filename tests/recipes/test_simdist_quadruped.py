@@ -334,6 +334,7 @@ def test_a_finished_run_from_before_a_field_existed_loads_with_what_it_was_made_
     from simdist.utils.stages import ABSENT_MEANS
     stored = json.loads(json.dumps(dataclasses.asdict(recipe.Config(model_size="tiny")), default=str))
     del stored["model_history"], stored["model_ignored_observations"]  # an older folder
+    del stored["planner_value_lambda"], stored["planner_value_every"]
     stored["a_field_since_removed"] = 1
     (tmp_path / "stages").mkdir()
     (tmp_path / "config.json").write_text(json.dumps({"config": stored}))
@@ -341,6 +342,8 @@ def test_a_finished_run_from_before_a_field_existed_loads_with_what_it_was_made_
     cfg, pretrained = recipe.load_finished_run(tmp_path, seed=3)
     assert (cfg.model_size, cfg.seed, pretrained) == ("tiny", 3, {"world_model": "w.pt"})
     assert cfg.model_ignored_observations == [] and cfg.model_history == 0
+    # planned with the terminal value alone, the default before the lambda-return
+    assert (cfg.planner_value_lambda, cfg.planner_value_every) == (1.0, 1)
     # a field whose default changed reads as what older folders were made with
     patched = copy.copy(recipe.Config.__dataclass_fields__["model_history"])
     patched.metadata = MappingProxyType({ABSENT_MEANS: 7})
@@ -366,10 +369,10 @@ def test_planner_flags_reach_the_planner_config():
     from simdist.recipes.simdist_quadruped import Config
     assert Config(planner_policy_noise_steps=1).planner().policy_noise_steps == 1
     assert Config().planner().policy_noise_steps == 0  # noise on every step of the plan
-    assert Config(planner_value_lambda=0.95).planner().value_lambda == 0.95
-    assert Config().planner().value_lambda == 1.0  # the terminal value alone
-    assert Config(planner_value_every=2).planner().value_every == 2
-    assert Config().planner().value_every == 1
+    assert Config(planner_value_lambda=1.0).planner().value_lambda == 1.0  # terminal value
+    assert Config().planner().value_lambda == 0.95  # a lambda-return
+    assert Config(planner_value_every=1).planner().value_every == 1
+    assert Config().planner().value_every == 2
     assert Config(planner_precision="bfloat16").planner().precision == "bfloat16"
     # bfloat16 only where it is fast (simdist.utils.precision)
     assert Config().planner().precision == Config().mixed_precision == "auto"

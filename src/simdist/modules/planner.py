@@ -72,8 +72,9 @@ class PlannerConfig:
     value_lambda: float = 1.0
     # Reads the lambda-return's values at every k-th predicted latent only (1: at each),
     # mixing with lambda^k there, so each value carries the weight the every-step return
-    # spreads over the k latents up to it (the terminal value's weight is unchanged): the
-    # same geometric weighting in H / k value calls instead of H. Unused when lambda is 1.
+    # spreads over the k latents up to it (the terminal value: over those after the last
+    # one read): the same geometric weighting in H / k value calls instead of H. Unused
+    # when lambda is 1.
     value_every: int = 1
     # Temporal colour of the sampling noise along the horizon (iCEM, Pinneri et al. 2020):
     # its power spectrum falls as 1/f^noise_beta. 0: white noise, every step drawn on its

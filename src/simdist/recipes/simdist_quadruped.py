@@ -252,16 +252,16 @@ class Config:
     planner_policy_noise_steps: int = 0
     # latent MPPI: a candidate's score mixes the values read along its plan, a
     # lambda-return (PlannerConfig.value_lambda; 1: the terminal value alone, as the
-    # reference). 0.95 on fixed 8-minute models (slippery_slope, six one-model bases,
-    # paired): +11 [+8, +14] points of the commanded distance, at ~1.4x a planner call
-    # (benchmarks/README.md, "Which part of two members carries the gain"); through the
-    # recipe, seeds 3 and 4: 72% against 60% at 8 minutes (paired +12 [+4, +20]). Two seeds
-    # and ~1.4x planner time: not yet the default.
-    planner_value_lambda: float = 1.0
+    # reference and every default before 2026-12-06 evening). Measured on slippery_slope
+    # through the whole recipe (every step's value), seeds 0, 1, 3, 4 paired with the
+    # previous default's runs: 8 minutes 67% against 54% (+13 [+8, +18]), zero-shot 45%
+    # against 30% (benchmarks/README.md, "The lambda-return over five seeds").
+    planner_value_lambda: float = field(default=0.95, metadata={ABSENT_MEANS: 1.0})
     # the lambda-return's values at every k-th predicted step only, mixed with lambda^k
     # (PlannerConfig.value_every; 1: at each step): the same weighting for fewer value-head
-    # calls.
-    planner_value_every: int = 1
+    # calls. 2 on six fixed 8-minute models: -1.1 [-3.4, +1.3] points against every step,
+    # at ~1.2-1.3x the terminal-value planner's call instead of ~1.4-1.5x (the same section).
+    planner_value_every: int = field(default=2, metadata={ABSENT_MEANS: 1})
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
     # (seeds 0-2: 89/82/91% -> 115/102/109% of the commanded distance) but not the current
@@ -487,6 +487,7 @@ PRESETS = {
               "batch_slices": 16, "planner_horizon": 25, "planner_samples": 450,
               "planner_iterations": 8, "planner_elites": 64, "planner_policy_fraction": 0.05,
               "planner_policy_noise": 0.05,
+              "planner_value_lambda": 1.0, "planner_value_every": 1,  # terminal value alone
               "budgets_min": [16.0, 27.0, 36.0], "collect_episodes": 32,
               "finetune_updates": 5000},
 }
