@@ -253,9 +253,9 @@ class Config:
     # latent MPPI: a candidate's score mixes the values read along its plan, a
     # lambda-return (PlannerConfig.value_lambda; 1: the terminal value alone, as the
     # reference and every default before 2026-12-06 evening). Measured on slippery_slope
-    # through the whole recipe (every step's value), seeds 0, 1, 3, 4 paired with the
-    # previous default's runs: 8 minutes 67% against 54% (+13 [+8, +18]), zero-shot 45%
-    # against 30% (benchmarks/README.md, "The lambda-return over five seeds").
+    # through the whole recipe (every step's value), five seeds paired with the previous
+    # default's runs: 8 minutes 67% against 56% (+11 [+7, +16]), zero-shot 42% against 29%
+    # (benchmarks/README.md, "The lambda-return over five seeds").
     planner_value_lambda: float = field(default=0.95, metadata={ABSENT_MEANS: 1.0})
     # the lambda-return's values at every k-th predicted step only, mixed with lambda^k
     # (PlannerConfig.value_every; 1: at each step): the same weighting for fewer value-head
