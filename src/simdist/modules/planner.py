@@ -346,7 +346,7 @@ class LatentMPPIPlanner(TensorDictModuleBase):
             rewards.append(r)
             total = total + (c.gamma ** t) * r
             z = self._dynamics(z, a)
-            if read and t in read:
+            if t in read:
                 latents.append(z)
         if self._value is not None:
             # The terminal value (~80 on the quadruped) decides most of the ranking, and
@@ -357,8 +357,8 @@ class LatentMPPIPlanner(TensorDictModuleBase):
                 value = self._value(z.float()).reshape(B * n).to(total.dtype)
             if read:
                 # The values along the plan in one call at the rollout's precision: each
-                # weighs (1 - lambda) gamma^t, so bfloat16's rounding matters far less than
-                # on the terminal value, and a float32 call per step would double the
+                # weighs (1 - lambda^k) gamma^t, so bfloat16's rounding matters far less
+                # than on the terminal value, and a float32 call per step would double the
                 # planner's time.
                 values = self._value(torch.stack(latents)).reshape(len(read), B * n)
                 values = dict(zip(read, values.to(total.dtype)))

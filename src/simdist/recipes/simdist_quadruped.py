@@ -260,7 +260,7 @@ class Config:
     # the lambda-return's values at every k-th predicted step only, mixed with lambda^k
     # (PlannerConfig.value_every; 1: at each step): the same weighting for fewer value-head
     # calls. 2 on six fixed 8-minute models: -1.1 [-3.4, +1.3] points against every step,
-    # at ~1.2-1.3x the terminal-value planner's call instead of ~1.4-1.5x (the same section).
+    # at ~1.1-1.3x the terminal-value planner's call instead of ~1.4-1.5x (the same section).
     planner_value_every: int = field(default=2, metadata={ABSENT_MEANS: 1})
     # steps of action delay the planner compensates (PlannerConfig.latency_compensation; the
     # SimDist reference: 1). Off: on laggy it lifted the previous default's pretrained models
