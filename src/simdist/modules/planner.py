@@ -336,8 +336,8 @@ class LatentMPPIPlanner(TensorDictModuleBase):
         total = torch.zeros(B * n, device=latent.device, dtype=latent.dtype)
         actions, rewards, latents = [], [], []
         mixed = self._value is not None and c.value_lambda < 1
-        # the latents z_j (j = t + 1 < H) whose values enter the lambda-return
-        read = [t for t in range(H - 1) if (t + 1) % c.value_every == 0] if mixed else []
+        # steps t whose next latent z_t+1 (every k-th, before z_H) is valued along the plan
+        read = range(c.value_every - 1, H - 1, c.value_every) if mixed else range(0)
         values = {}
         for t in range(H):
             a = action_at(t, z)
@@ -360,8 +360,8 @@ class LatentMPPIPlanner(TensorDictModuleBase):
                 # weighs (1 - lambda^k) gamma^t, so bfloat16's rounding matters far less
                 # than on the terminal value, and a float32 call per step would double the
                 # planner's time.
-                values = self._value(torch.stack(latents)).reshape(len(read), B * n)
-                values = dict(zip(read, values.to(total.dtype)))
+                along = self._value(torch.stack(latents)).reshape(len(read), B * n)
+                values = dict(zip(read, along.to(total.dtype)))
         else:
             value = torch.zeros_like(total)
         if mixed:  # the lambda-return, backwards from G_H = V(z_H)
