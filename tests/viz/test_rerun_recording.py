@@ -57,3 +57,26 @@ def test_body_positions_match_the_simulator():
     points = bodies(qpos)
     ids = [physics.model.name2id(b, "body") for b in BODIES]
     np.testing.assert_allclose(points, physics.data.xpos[ids], atol=1e-5)
+
+
+def test_a_recorded_planning_episode_is_also_its_video(tmp_path):
+    import imageio_ffmpeg
+
+    from simdist.agents import SimDistAgent
+    from simdist.pipelines import locomotion_env
+    from simdist.viz import record_planning_episode
+
+    torch.manual_seed(0)
+    env = locomotion_env("sim", 1, 4, seed=0)
+    obs_dim = env.observation_spec["observation"].shape[-1]
+    wm = SimDistWorldModel.build(obs_dim, 12, size="tiny", history=1)
+    agent = SimDistAgent(wm, planner_config=PlannerConfig(horizon=2, num_samples=8,
+                                                          num_elites=2, iterations=1))
+    low, high = env.action_spec.space.low[0], env.action_spec.space.high[0]
+    probe = StateDecoder(wm.latent_dim, env.base_env.state_layout.size, hidden=16, layers=1)
+    rrd, video = tmp_path / "episode.rrd", tmp_path / "episode.mp4"
+    out = record_planning_episode(env, agent.policy(low, high, seed=0), probe, str(rrd), 4,
+                                  video_path=video, video_size=64)
+    env.close()
+    assert out == str(rrd) and "/world/robot/torso" in set(entity_paths(out))
+    assert imageio_ffmpeg.count_frames_and_secs(str(video))[0] == 5  # reset + 4 steps

@@ -52,7 +52,6 @@ from simdist.modules.simdist_model import DYNAMICS_RESIDUALS
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, episode_stats,
                                locomotion_env, mean_metrics, rollout, stage_seed,
                                train_resumable)
-from simdist.pipelines.evaluate_agent import record_video
 from simdist.pipelines.experiment_log import LOGGERS, log_metrics, make_logger, plot_curves
 from simdist.pipelines.locomotion import UPSIDE_DOWN
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
@@ -1024,14 +1023,14 @@ def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out
                              primers=[agent.make_primer(cfg.planner().latency_compensation)])
         spec = env.action_spec
         policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
+        # the same episode also as a video, for readers without a rerun viewer
+        video = out / f"planner_{label}_finetuning.mp4"
         paths[label] = record_planning_episode(env, policy, probe_net,
                                                str(out / f"rerun_{label}.rrd"), cfg.episode_steps,
-                                               application_id=f"simdist_{label}_finetuning")
+                                               application_id=f"simdist_{label}_finetuning",
+                                               video_path=video)
+        paths[f"video_{label}"] = str(video)
         env.close()
-        # the same episode (same world seed) as a video, for readers without a rerun viewer
-        paths[f"video_{label}"] = str(record_video(
-            agent, cfg.task, out / f"planner_{label}_finetuning.mp4", target=cfg.target,
-            steps=cfg.episode_steps, seed=cfg.seed + 10_000, planner=cfg.planner()))
     return paths
 
 
