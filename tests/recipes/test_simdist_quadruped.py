@@ -581,6 +581,38 @@ def test_members_finetuned_side_by_side_equal_those_finetuned_one_after_the_othe
     assert side["simdist_loss"] == turn["simdist_loss"] and side["target_steps"] == turn["target_steps"]
 
 
+def test_the_planner_stages_side_by_side_give_the_figures_of_one_process(tmp_path, tiny_expert,
+                                                                          capsys):
+    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.utils import load_memmap
+    assert recipe.stage_jobs(recipe.Config(threads=2), 3) == (2, 1)  # the 2-core default
+    assert recipe.stage_jobs(recipe.Config(threads=2, jobs=1), 3) == (1, 2)
+    assert recipe.stage_jobs(recipe.Config(threads=4, jobs=8), 2) == (2, 2)
+    # one thread per process either way: the zero-shot evaluations, both rounds' collection
+    # batches (3 episodes, 2 at a time) and their three methods side by side or in turn
+    common = ("--preset", "tiny", "--expert", tiny_expert, "--no-record", "--threads", 1)
+    side, turn = tmp_path / "side", tmp_path / "turn"
+    for jobs, out in ((2, side), (1, turn)):
+        proc = _run_here(*common, "--jobs", jobs, "--output-dir", out, capsys=capsys)
+        assert proc.returncode == 0, proc.stderr
+    a, b = (json.loads((out / "results.json").read_text()) for out in (side, turn))
+    assert a["curves"] == b["curves"] and a["planner_zero_shot"] == b["planner_zero_shot"]
+    for k in (1, 2):
+        stages = [out / "stages" / f"round_{k}" for out in (side, turn)]
+        first, second = (load_memmap(s / "data") for s in stages)
+        assert (first == second).all()
+        for name in ("simdist.pt", "whole.pt"):
+            x, y = (torch.load(s / name, weights_only=True) for s in stages)
+            assert all(torch.equal(v, y[key]) for key, v in x.items()), name
+        logs = [sorted(p.relative_to(out) for p in (out / "logs" / "scalars" / f"round_{k}")
+                       .rglob("*") if p.is_file()) for out in (side, turn)]
+        assert logs[0] == logs[1] and any("sac" in str(p) for p in logs[0])
+    # how many processes is not part of the results: the other count reuses every stage
+    proc = _run_here(*common, "--jobs", 2, "--output-dir", turn, capsys=capsys)
+    assert proc.returncode == 0 and "already done" in proc.stdout
+    assert json.loads((turn / "results.json").read_text())["curves"] == b["curves"]
+
+
 def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_expert, capsys):
     # (with the default encoder, which reads previous actions, through every stage)
     proc = _run_here("--preset", "tiny", "--expert", tiny_expert, "--ensemble-size", 2,

@@ -212,6 +212,17 @@ class Config:
     # member's weights depend on its seed and thread count only, so this changes no
     # figure beyond what --threads does. Not part of the results.
     ensemble_jobs: int = 0
+    # processes for the independent parts of the planner stages: the zero-shot stage's two
+    # evaluations, a round's collection batches, its three methods (each finetuned and
+    # evaluated in its own process) and the two recordings (0: as many as the torch threads
+    # allow, one thread or more each; 1: one after the other in this process). With members
+    # (ensemble_size > 1) a round's methods stay one after the other, their members side by
+    # side (ensemble_jobs). Planner calls are mostly fixed per-call cost, so two one-thread
+    # processes do two evaluations in ~1.2x the time of one with two threads
+    # (benchmarks/README.md, "Side by side: the recipe's planner stages on two cores"). A
+    # figure depends on its seeds and each process's thread count only, so this changes no
+    # figure beyond what --threads does. Not part of the results.
+    jobs: int = 0
     pretrain_updates: int = 12000  # world-model updates on the dataset (batch_slices slices each)
     probe_updates: int = 1000  # latent -> state probe for the rerun recordings only
     # rerun recordings and videos of one target episode before and after finetuning (and
@@ -386,7 +397,7 @@ class Config:
                        "reward_upright_power")
         check_positive(self, "probe_updates", "finetune_updates", "value_weight",
                        "model_history", "model_dynamics_hidden", "model_latent_dim", "threads",
-                       "ensemble_jobs", "collect_planner_samples",
+                       "ensemble_jobs", "jobs", "collect_planner_samples",
                        "collect_planner_iterations", "collect_planner_elites",
                        "finetune_reward_weight", "finetune_value_weight",
                        "finetune_priority_alpha", "finetune_priority_beta",
@@ -688,6 +699,14 @@ def member_jobs(cfg: Config, members: int | None = None) -> tuple[int, int]:
     return jobs, max(1, threads // jobs)
 
 
+def stage_jobs(cfg: Config, calls: int) -> tuple[int, int]:
+    """(processes, torch threads each) for ``calls`` independent planner-stage calls
+    (``cfg.jobs``; see its comment)."""
+    threads = cfg.threads or torch.get_num_threads()
+    jobs = max(1, min(calls, cfg.jobs or threads))
+    return jobs, max(1, threads // jobs)
+
+
 def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
                    logger=None) -> dict:
     jobs, threads = member_jobs(cfg)
@@ -795,21 +814,45 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
     agent's planner; with ``cfg.collect_reset_upside_down`` a row may hold several
     episodes."""
     episodes = max(1, round(steps / cfg.episode_steps))
-    batches = []
-    for start in range(0, episodes, cfg.collect_episodes):
-        n = min(cfg.collect_episodes, episodes - start)
-        env = locomotion_env(get_target(cfg.target), n, cfg.episode_steps, seed + start,
-                             task=cfg.task, upright_power=cfg.reward_upright_power,
-                             primers=[agent.make_primer(cfg.planner().latency_compensation)],
-                             upside_down_termination=(UPSIDE_DOWN if cfg.collect_reset_upside_down
-                                                      else None))
-        spec = env.action_spec
-        policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.collect_planner(),
-                              seed=seed + start)
-        batches.append(rollout(env, policy, cfg.episode_steps, desc=f"collect in {cfg.target}")
-                       .select(*TARGET_KEYS))
-        env.close()
-    return torch.cat(batches, 0)
+    return torch.cat([collect_batch(cfg, agent, min(cfg.collect_episodes, episodes - start),
+                                    seed + start)
+                      for start in range(0, episodes, cfg.collect_episodes)], 0)
+
+
+def collect_batch(cfg: Config, agent: SimDistAgent, worlds: int, seed: int) -> TensorDict:
+    """One batch of :func:`collect_target_data`: ``worlds`` episodes stepped at once."""
+    env = locomotion_env(get_target(cfg.target), worlds, cfg.episode_steps, seed,
+                         task=cfg.task, upright_power=cfg.reward_upright_power,
+                         primers=[agent.make_primer(cfg.planner().latency_compensation)],
+                         upside_down_termination=(UPSIDE_DOWN if cfg.collect_reset_upside_down
+                                                  else None))
+    spec = env.action_spec
+    policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.collect_planner(),
+                          seed=seed)
+    batch = rollout(env, policy, cfg.episode_steps, desc=f"collect in {cfg.target}")
+    env.close()
+    return batch.select(*TARGET_KEYS)
+
+
+def collect_batch_job(cfg: Config, pretrained: dict, weights: list[str] | None, worlds: int,
+                      seed: int) -> TensorDict:
+    """:func:`collect_batch` in a :func:`run_jobs` worker, with the planner on ``weights``
+    (None: the pretrained model)."""
+    return collect_batch(cfg, planning_agent(cfg, pretrained, weights), worlds, seed)
+
+
+def collect_round_data(cfg: Config, pretrained: dict, weights: list[str] | None, steps: int,
+                       seed: int) -> TensorDict:
+    """:func:`collect_target_data` with its batches side by side (:func:`stage_jobs`)."""
+    episodes = max(1, round(steps / cfg.episode_steps))
+    starts = range(0, episodes, cfg.collect_episodes)
+    jobs, threads = stage_jobs(cfg, len(starts))
+    if jobs == 1:
+        return collect_target_data(cfg, planning_agent(cfg, pretrained, weights), steps, seed)
+    return torch.cat(run_jobs([(collect_batch_job, (cfg, pretrained, weights,
+                                                    min(cfg.collect_episodes, episodes - start),
+                                                    seed + start)) for start in starts],
+                              jobs, threads=threads), 0)
 
 
 def member_tag(name: str, i: int) -> str:
@@ -882,6 +925,12 @@ def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[
     else:
         done = [finetune_member(cfg, k, pretrained, path, i, name, what, data, uniform_sample,
                                 stage_dir, logger) for i, path in enumerate(paths)]
+    return method_results(cfg, pretrained, name, done)
+
+
+def method_results(cfg: Config, pretrained: dict, name: str, done: list[tuple]) -> dict:
+    """A finetuned method's round entries from its members' ``(weights, agent file,
+    history)``, its planner evaluated in the target."""
     saved = [d[0] for d in done]
     agent_files = [d[1] for d in done]
     return {name: saved[0], f"{name}_members": saved,
@@ -891,17 +940,34 @@ def finetune_and_evaluate(cfg: Config, k: int, pretrained: dict, previous: list[
             f"{name}_loss": mean_metrics(done[0][2])}
 
 
+def method_job(cfg: Config, k: int, pretrained: dict, path: str, name: str, what: str,
+               data_dirs: list[str], dataset: str | None, stage_dir: Path
+               ) -> tuple[dict, list[dict], int]:
+    """One finetuned method of a one-model round in a :func:`run_jobs` worker: the model
+    at ``path`` finetuned on the round's data read from disk, then evaluated. Returns its
+    round entries, its history and how many updates its checkpoint already held."""
+    done = updates_done(stage_dir / f"{name}.ckpt")
+    data, sample = round_data(cfg, data_dirs, dataset)
+    trained = finetune_member(cfg, k, pretrained, path, 0, name, what, data, sample, stage_dir)
+    return method_results(cfg, pretrained, name, [trained]), trained[2], done
+
+
 def previous_members(previous: dict, name: str) -> list[str]:
     """A finished round's weights of method ``name``, one per ensemble member (a round
     recorded before ensembles has one)."""
     return previous.get(f"{name}_members", [previous[name]])
 
 
+def load_round_data(data_dirs: list[str]) -> TensorDict:
+    """Every round's target data so far, ``[episodes, steps]``."""
+    return torch.cat([load_memmap(Path(d)) for d in data_dirs], 0)
+
+
 def round_data(cfg: Config, data_dirs: list[str], dataset: str | None):
     """Every round's target data so far (``[episodes, steps]``, read from ``data_dirs``)
     and the finetuning batch sampler over it; with ``cfg.finetune_sim_fraction > 0`` part
     of every batch comes from the pretraining ``dataset``."""
-    data = torch.cat([load_memmap(Path(d)) for d in data_dirs], 0)
+    data = load_round_data(data_dirs)
     sim_slices = cfg.finetune_sim_slices()
     buffer = as_slices(data, cfg.slice_len, cfg.batch_slices - sim_slices)
     sample = lambda: buffer.sample().reshape(-1, cfg.slice_len)  # noqa: E731
@@ -924,38 +990,70 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     budget = round(cfg.budgets_min[k] * STEPS_PER_MINUTE)
     done_before = previous["target_steps"] if previous else 0
     data_dir = stage_dir / "data"
+    previous_simdist = previous and previous_members(previous, "simdist")
+    previous_whole = previous and previous_members(previous, "whole")
     if not data_dir.exists():  # save_memmap renames a complete folder into place
-        collector = planning_agent(cfg, pretrained, previous and previous_members(previous, "simdist"))
-        fresh = collect_target_data(cfg, collector, budget - done_before,
-                                    seed=cfg.seed + 1000 * (k + 1))
+        fresh = collect_round_data(cfg, pretrained, previous_simdist, budget - done_before,
+                                   seed=cfg.seed + 1000 * (k + 1))
         save_memmap(fresh, data_dir)
     data_dirs = [*(previous["data"] if previous else []), str(data_dir)]
+    previous_sac = previous["sac"] if previous else None
+    jobs, threads = stage_jobs(cfg, 3)
+    if jobs > 1 and len(member_paths(pretrained, previous_simdist)) == 1:
+        # one model: SimDist, the ablation and SAC side by side, each in its own process
+        methods = [(method_job, (cfg, k, pretrained, member_paths(pretrained, previous_simdist)[0],
+                                 "simdist", "finetune dynamics", data_dirs, dataset, stage_dir)),
+                   (method_job, (cfg, k, pretrained, member_paths(pretrained, previous_whole)[0],
+                                 "whole", "finetune whole model", data_dirs, dataset, stage_dir)),
+                   (sac_job, (cfg, k, expert_path, previous_sac, data_dirs, stage_dir))]
+        results = {"target_steps": load_round_data(data_dirs).numel(), "data": data_dirs}
+        for tag, (entries, history, before) in zip(("simdist", "whole", "sac"),
+                                                   run_jobs(methods, jobs, threads=threads)):
+            log_trained(logger, f"round_{k + 1}/{tag}", history, before)
+            results.update(entries)
+        return results
     data, sample = round_data(cfg, data_dirs, dataset)
     results = {"target_steps": data.numel(), "data": data_dirs}
 
     # SimDist: dynamics only, continuing from the previous round's dynamics.
     results.update(finetune_and_evaluate(
-        cfg, k, pretrained, previous and previous_members(previous, "simdist"), "simdist",
-        "finetune dynamics", data, sample, stage_dir, logger, data_dirs, dataset))
+        cfg, k, pretrained, previous_simdist, "simdist", "finetune dynamics", data, sample,
+        stage_dir, logger, data_dirs, dataset))
     # Ablation: the whole world model on the same data, same number of updates.
     results.update(finetune_and_evaluate(
-        cfg, k, pretrained, previous and previous_members(previous, "whole"), "whole",
-        "finetune whole model", data, sample, stage_dir, logger, data_dirs, dataset))
-
+        cfg, k, pretrained, previous_whole, "whole", "finetune whole model", data, sample,
+        stage_dir, logger, data_dirs, dataset))
     # Baseline: continue the expert's SAC on the same target data.
+    results.update(sac_round(cfg, k, expert_path, previous_sac, data, stage_dir, logger)[0])
+    return results
+
+
+def sac_round(cfg: Config, k: int, expert_path: str, previous_sac: str | None, data,
+              stage_dir: Path, logger=None) -> tuple[dict, list[dict]]:
+    """The continued-SAC baseline of round ``k``: ``cfg.finetune_updates`` resumable
+    updates on the round's ``data`` from the expert (or the previous round's SAC), then
+    evaluated in the target. Returns its round entries and its history."""
     sac = OfflineSAC(Expert.load(expert_path),
                      OfflineSACConfig(batch_size=cfg.sac_batch_size, seed=cfg.seed))
-    if previous:
-        sac.load_state_dict(load_checkpoint(previous["sac"])["state"]["sac"])
+    if previous_sac:
+        sac.load_state_dict(load_checkpoint(previous_sac)["state"]["sac"])
     sac_buffer = sac.buffer(data)
     hist = train_resumable(sac.update, sac_buffer.sample, cfg.finetune_updates, {"sac": sac},
                            stage_dir / "sac.ckpt", desc=f"round {k + 1}: continue expert SAC",
                            seed=stage_seed(cfg.seed, f"round_{k + 1}/sac"),
                            logger=logger, log_prefix=f"round_{k + 1}/sac")
-    results["sac"] = str(stage_dir / "sac.ckpt")
-    results["sac_eval"] = evaluate(cfg, cfg.target, sac.expert().deterministic())
-    results["sac_loss"] = mean_metrics(hist)
-    return results
+    return {"sac": str(stage_dir / "sac.ckpt"),
+            "sac_eval": evaluate(cfg, cfg.target, sac.expert().deterministic()),
+            "sac_loss": mean_metrics(hist)}, hist
+
+
+def sac_job(cfg: Config, k: int, expert_path: str, previous_sac: str | None,
+            data_dirs: list[str], stage_dir: Path) -> tuple[dict, list[dict], int]:
+    """:func:`sac_round` in a :func:`run_jobs` worker, on the round's data read from disk;
+    also returns how many updates its checkpoint already held."""
+    done = updates_done(stage_dir / "sac.ckpt")
+    return (*sac_round(cfg, k, expert_path, previous_sac, load_round_data(data_dirs),
+                       stage_dir), done)
 
 
 def probe_stage(cfg: Config, dataset: str, pretrained: dict, stage_dir: Path,
@@ -1008,30 +1106,45 @@ class FirstMemberProbe(torch.nn.Module):
         return self.probe(latent[..., :self.latent_dim])
 
 
+def zero_shot_job(cfg: Config, pretrained: dict, domain: str) -> dict:
+    """The pretrained planner evaluated in ``domain`` (a :func:`run_jobs` call)."""
+    return evaluate_planner(cfg, planning_agent(cfg, pretrained), domain)[0]
+
+
 def recording_stage(cfg: Config, pretrained: dict, probe: dict, final: dict, out: Path) -> dict:
-    """rerun recordings of one target episode before and after dynamics finetuning."""
+    """rerun recordings of one target episode before and after dynamics finetuning (side
+    by side, :func:`stage_jobs`)."""
+    labels = (("before", None), ("after", previous_members(final, "simdist")))
+    jobs, threads = stage_jobs(cfg, len(labels))
     paths = {}
-    for label, weights in (("before", None), ("after", previous_members(final, "simdist"))):
-        agent = planning_agent(cfg, pretrained, weights)
-        # the probe reads member 0's latent (the first slice of an ensemble's)
-        probe_net = StateDecoder(pretrained_latent_dim(agent), probe["state_dim"], hidden=256,
-                                 layers=2)
-        probe_net.load_state_dict(load_checkpoint(probe["path"]))
-        probe_net = FirstMemberProbe(probe_net, pretrained_latent_dim(agent)).to(cfg.device)
-        env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, cfg.seed + 10_000,
-                             task=cfg.task, upright_power=cfg.reward_upright_power,
-                             primers=[agent.make_primer(cfg.planner().latency_compensation)])
-        spec = env.action_spec
-        policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
-        # the same episode also as a video, for readers without a rerun viewer
-        video = out / f"planner_{label}_finetuning.mp4"
-        paths[label] = record_planning_episode(env, policy, probe_net,
-                                               str(out / f"rerun_{label}.rrd"), cfg.episode_steps,
-                                               application_id=f"simdist_{label}_finetuning",
-                                               video_path=video)
-        paths[f"video_{label}"] = str(video)
-        env.close()
+    for recorded in run_jobs([(recording_job, (cfg, pretrained, probe, weights, label, out))
+                              for label, weights in labels], jobs, threads=threads):
+        paths.update(recorded)
     return paths
+
+
+def recording_job(cfg: Config, pretrained: dict, probe: dict, weights: list[str] | None,
+                  label: str, out: Path) -> dict:
+    """One recording of :func:`recording_stage`: the planner on ``weights`` (None: the
+    pretrained model) for one target episode, to ``rerun_{label}.rrd`` and an MP4."""
+    agent = planning_agent(cfg, pretrained, weights)
+    # the probe reads member 0's latent (the first slice of an ensemble's)
+    probe_net = StateDecoder(pretrained_latent_dim(agent), probe["state_dim"], hidden=256,
+                             layers=2)
+    probe_net.load_state_dict(load_checkpoint(probe["path"]))
+    probe_net = FirstMemberProbe(probe_net, pretrained_latent_dim(agent)).to(cfg.device)
+    env = locomotion_env(get_target(cfg.target), 1, cfg.episode_steps, cfg.seed + 10_000,
+                         task=cfg.task, upright_power=cfg.reward_upright_power,
+                         primers=[agent.make_primer(cfg.planner().latency_compensation)])
+    spec = env.action_spec
+    policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
+    # the same episode also as a video, for readers without a rerun viewer
+    video = out / f"planner_{label}_finetuning.mp4"
+    path = record_planning_episode(env, policy, probe_net, str(out / f"rerun_{label}.rrd"),
+                                   cfg.episode_steps, application_id=f"simdist_{label}_finetuning",
+                                   video_path=video)
+    env.close()
+    return {label: path, f"video_{label}": str(video)}
 
 
 # -- the recipe -------------------------------------------------------------------------
@@ -1044,7 +1157,7 @@ def run(cfg: Config) -> dict:
     # to record may differ from the first run's
     runner = StageRunner(out, dataclasses.replace(cfg, seeds=[]),
                          runtime_keys=("device", "logger", "threads", "dataset_workers",
-                                       "record", "ensemble_jobs"))
+                                       "record", "ensemble_jobs", "jobs"))
     logger = make_logger(cfg.logger, out)
     precision = {name: resolve_precision(getattr(cfg, name), cfg.device)
                  for name in ("mixed_precision", "planner_precision")}
@@ -1083,9 +1196,10 @@ def run(cfg: Config) -> dict:
     check_weights_for_stages(cfg, runner, pretrained)
 
     def zero_shot(d):
-        agent = planning_agent(cfg, pretrained)
-        return {domain: evaluate_planner(cfg, agent, domain)[0]
-                for domain in tqdm(["sim", cfg.target], desc="planner zero-shot")}
+        domains = ["sim", cfg.target]
+        jobs, threads = stage_jobs(cfg, len(domains))
+        return dict(zip(domains, run_jobs([(zero_shot_job, (cfg, pretrained, domain))
+                                           for domain in domains], jobs, threads=threads)))
 
     planner_zero_shot = stage("zero_shot", zero_shot)
     probe = (stage("probe", lambda d: probe_stage(cfg, dataset["path"], pretrained, d, logger))
