@@ -217,8 +217,8 @@ class Config:
     # evaluated in its own process) and the two recordings (0: as many as the torch threads
     # allow, one thread or more each; 1: one after the other in this process). With members
     # (ensemble_size > 1) a round's methods stay one after the other, their members side by
-    # side (ensemble_jobs). Planner calls are mostly fixed per-call cost, so two one-thread
-    # processes do two evaluations in ~1.2x the time of one with two threads
+    # side (ensemble_jobs). A second torch thread speeds the planner up only 1.5-1.8x, so
+    # on 2 cores the zero-shot stage took 146 s side by side against 196 s in one process
     # (benchmarks/README.md, "Side by side: the recipe's planner stages on two cores"). A
     # figure depends on its seeds and each process's thread count only, so this changes no
     # figure beyond what --threads does. Not part of the results.
