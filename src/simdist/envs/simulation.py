@@ -93,6 +93,21 @@ class Simulation:
         self.seed(seed)
         self.steps = 0
 
+    @property
+    def control_rate(self) -> float:
+        """Agent steps per simulated second (a video's real-time frame rate).
+
+        Examples:
+            >>> from simdist.envs import get_task
+            >>> sim = Simulation(get_task("quadruped-flat"), TargetDomain(), dynamics=None,
+            ...                  visual=None, pixels=False, image_size=64, camera_id=None,
+            ...                  seed=0)
+            >>> sim.control_rate
+            50.0
+        """
+        dt = self.physics.timestep() * self.n_sub_steps * self.spec.action_repeat
+        return round(1.0 / dt, 3)
+
     def seed(self, seed: int) -> None:
         """Reseeds the task's initial-state draws and every randomisation draw."""
         seq = np.random.SeedSequence(int(seed))

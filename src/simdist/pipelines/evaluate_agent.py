@@ -161,7 +161,4 @@ def record_video(agent, task: str, path: str | os.PathLike, target=None,
                 frames.append(sim.render(size))
     finally:
         env.close()
-    if fps is None:
-        dt = sim.physics.timestep() * sim.n_sub_steps * sim.spec.action_repeat
-        fps = round(1.0 / dt, 3)
-    return write_mp4(np.stack(frames), path, fps)
+    return write_mp4(np.stack(frames), path, sim.control_rate if fps is None else fps)

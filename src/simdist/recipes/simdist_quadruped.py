@@ -813,10 +813,16 @@ def collect_target_data(cfg: Config, agent: SimDistAgent, steps: int, seed: int)
     """``steps`` transitions in the target (``[worlds, episode_steps]`` rows) from the
     agent's planner; with ``cfg.collect_reset_upside_down`` a row may hold several
     episodes."""
+    return torch.cat([collect_batch(cfg, agent, worlds, batch_seed)
+                      for worlds, batch_seed in collection_batches(cfg, steps, seed)], 0)
+
+
+def collection_batches(cfg: Config, steps: int, seed: int) -> list[tuple[int, int]]:
+    """``(worlds, seed)`` of each batch that collects ``steps`` target transitions:
+    ``cfg.collect_episodes`` worlds at a time, each batch seeded by its first episode."""
     episodes = max(1, round(steps / cfg.episode_steps))
-    return torch.cat([collect_batch(cfg, agent, min(cfg.collect_episodes, episodes - start),
-                                    seed + start)
-                      for start in range(0, episodes, cfg.collect_episodes)], 0)
+    return [(min(cfg.collect_episodes, episodes - start), seed + start)
+            for start in range(0, episodes, cfg.collect_episodes)]
 
 
 def collect_batch(cfg: Config, agent: SimDistAgent, worlds: int, seed: int) -> TensorDict:
@@ -844,15 +850,10 @@ def collect_batch_job(cfg: Config, pretrained: dict, weights: list[str] | None, 
 def collect_round_data(cfg: Config, pretrained: dict, weights: list[str] | None, steps: int,
                        seed: int) -> TensorDict:
     """:func:`collect_target_data` with its batches side by side (:func:`stage_jobs`)."""
-    episodes = max(1, round(steps / cfg.episode_steps))
-    starts = range(0, episodes, cfg.collect_episodes)
-    jobs, threads = stage_jobs(cfg, len(starts))
-    if jobs == 1:
-        return collect_target_data(cfg, planning_agent(cfg, pretrained, weights), steps, seed)
-    return torch.cat(run_jobs([(collect_batch_job, (cfg, pretrained, weights,
-                                                    min(cfg.collect_episodes, episodes - start),
-                                                    seed + start)) for start in starts],
-                              jobs, threads=threads), 0)
+    batches = collection_batches(cfg, steps, seed)
+    jobs, threads = stage_jobs(cfg, len(batches))
+    return torch.cat(run_jobs([(collect_batch_job, (cfg, pretrained, weights, *batch))
+                               for batch in batches], jobs, threads=threads), 0)
 
 
 def member_tag(name: str, i: int) -> str:
@@ -999,9 +1000,10 @@ def round_stage(cfg: Config, k: int, pretrained: dict, expert_path: str, stage_d
     data_dirs = [*(previous["data"] if previous else []), str(data_dir)]
     previous_sac = previous["sac"] if previous else None
     jobs, threads = stage_jobs(cfg, 3)
-    if jobs > 1 and len(member_paths(pretrained, previous_simdist)) == 1:
+    simdist_paths = member_paths(pretrained, previous_simdist)
+    if jobs > 1 and len(simdist_paths) == 1:
         # one model: SimDist, the ablation and SAC side by side, each in its own process
-        methods = [(method_job, (cfg, k, pretrained, member_paths(pretrained, previous_simdist)[0],
+        methods = [(method_job, (cfg, k, pretrained, simdist_paths[0],
                                  "simdist", "finetune dynamics", data_dirs, dataset, stage_dir)),
                    (method_job, (cfg, k, pretrained, member_paths(pretrained, previous_whole)[0],
                                  "whole", "finetune whole model", data_dirs, dataset, stage_dir)),

@@ -36,12 +36,12 @@ def record_planning_episode(env, policy, probe, path: str, steps: int,
         ``path``.
     """
     base = env.base_env
-    physics = base.sims[0].physics
+    sim = base.sims[0]
+    physics = sim.physics
     qpos = base.state_layout["qpos"]
     kinematics = BodyPositions(physics.model.ptr, bodies)
     world_model = policy.world_model
     recorder = PlanningRecorder(path, application_id=application_id)
-    sim = base.sims[0]
     frames = []
     td = env.reset()
     if video_path is not None:
@@ -62,6 +62,5 @@ def record_planning_episode(env, policy, probe, path: str, steps: int,
             td = step_mdp(td)
     recorder.close()
     if video_path is not None:
-        dt = physics.timestep() * sim.n_sub_steps * sim.spec.action_repeat
-        write_mp4(np.stack(frames), video_path, fps=round(1.0 / dt, 3))
+        write_mp4(np.stack(frames), video_path, fps=sim.control_rate)
     return path
