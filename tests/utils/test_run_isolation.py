@@ -29,6 +29,10 @@ def nap(seconds):
     time.sleep(seconds)
     return seconds
 
+def pid_after(seconds):
+    time.sleep(seconds)
+    return os.getpid()
+
 def use_runner(out):
     from simdist.utils import StageRunner
     with StageRunner(out, {"seed": 0}) as runner:
@@ -100,6 +104,22 @@ def test_a_killed_worker_fails_the_run_naming_the_unfinished_call(helpers):
         run_jobs([(helpers.nap, (0.0,)), (helpers.die, ())], jobs=2)
     assert "nap(0.0)" not in str(info.value)  # it had finished
     assert "rerun the same command" in str(info.value)
+
+
+def test_workers_are_kept_for_the_next_call_and_replaced_after_one_dies(tmp_path, helpers):
+    calls = [(helpers.pid_after, (0.5,))] * 2  # both busy at once: one call per worker
+    first = set(run_jobs(calls, jobs=2, threads=1))
+    assert len(first) == 2 and os.getpid() not in first
+    assert set(run_jobs(calls, jobs=2, threads=1)) == first  # no new processes
+    # The kept workers use the folder locks the parent holds at each call, not at their start.
+    for name in ("a", "b"):
+        with StageRunner(tmp_path / name, {"seed": 0}) as runner:
+            pids = run_jobs([(helpers.use_runner, (str(tmp_path / name),))] * 2, jobs=2,
+                            threads=1)
+            assert set(pids) <= first and runner.done(f"in_{pids[0]}")
+    with pytest.raises(BrokenProcessPool):
+        run_jobs([(helpers.die, ())] * 2, jobs=2, threads=1)
+    assert not set(run_jobs(calls, jobs=2, threads=1)) & first  # a fresh pool
 
 
 def test_a_second_run_into_the_same_folder_is_refused_until_the_first_dies(tmp_path):

@@ -14,7 +14,7 @@ import weakref
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.checkpoint import CorruptFileError, recovery_hint
@@ -255,6 +255,9 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
     queueing. On an error, calls not yet started are cancelled, those running finish (a
     recipe stage keeps what it checkpointed), then the first error is raised.
 
+    The workers are kept for the next call with the same ``jobs`` and ``threads`` (a
+    fresh process spends seconds importing torch and MuJoCo; a recipe makes several such
+    calls per run), so a call must not rely on a fresh process: each sets its own seeds.
     Workers die with this process: killing it (even with SIGKILL) leaves no orphans (on
     Linux the kernel signals them; elsewhere they notice within a second). A worker that
     dies (killed, out of memory) fails the run with ``BrokenProcessPool`` naming the calls
@@ -266,6 +269,23 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
         >>> run_jobs([(pow, (2, 3)), (divmod, (7, 2)), (max, (1, 5))], jobs=2,
         ...          after=[(), (), (0, 1)])
         [8, (3, 1), 5]
+    """
+    results = dict(iter_jobs(calls, jobs, after, threads))
+    return [results[i] for i in range(len(calls))]
+
+
+def iter_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
+              after: Sequence[Sequence[int]] | None = None, threads: int | None = None
+              ) -> Iterator[tuple[int, Any]]:
+    """:func:`run_jobs` that yields ``(index, result)`` as each call finishes, so the
+    caller can keep each result (e.g. write a dataset shard) before the next ones end.
+
+    ``jobs=1`` runs each call here when the next result is asked for. Closing the
+    generator early waits for the calls running in workers and starts no others.
+
+    Examples:
+        >>> list(iter_jobs([(pow, (2, 3)), (divmod, (7, 2))]))
+        [(0, 8), (1, (3, 1))]
     """
     if jobs < 1:
         raise ValueError(f"jobs must be >= 1, got {jobs}")
@@ -279,43 +299,82 @@ def run_jobs(calls: Sequence[tuple[Callable, tuple]], jobs: int = 1,
             raise ValueError(f"after[{i}] = {needs}: a call can only wait for calls "
                              f"listed before it (indices 0..{i - 1})")
     if jobs == 1 or len(calls) <= 1:
-        return [fn(*args) for fn, args in calls]
+        for i, (fn, args) in enumerate(calls):
+            yield i, fn(*args)
+        return
     threads = threads or max(1, (os.cpu_count() or 1) // jobs)
     with _LOCKS_GUARD:
         locks = sorted(set(_HELD) | _INHERITED)
-    # spawn, not fork: forked children of a process that already ran torch/OpenMP or
-    # opened a GL context can deadlock.
-    pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_init_worker, initargs=(threads, os.getpid(), locks))
-    results: dict[int, Any] = {}
+    pool = _worker_pool(jobs, threads)
+    finished: set[int] = set()
     running: dict[Future, int] = {}
     waiting = list(range(len(calls)))
     try:
         while waiting or running:
             # fill free processes in list order; the pool's own queue stays empty, so a call
             # that becomes ready later still starts before those listed after it
-            for i in [i for i in waiting if all(j in results for j in after[i])]:
+            for i in [i for i in waiting if all(j in finished for j in after[i])]:
                 if len(running) >= jobs:
                     break
                 fn, args = calls[i]
-                running[pool.submit(fn, *args)] = i
+                running[pool.submit(_call_in_worker, locks, fn, args)] = i
                 waiting.remove(i)
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in done:
-                results[running.pop(future)] = future.result()
-        return [results[i] for i in range(len(calls))]
+                i = running.pop(future)
+                result = future.result()
+                finished.add(i)
+                yield i, result
     except BrokenProcessPool as err:
-        pool.shutdown(wait=True, cancel_futures=True)
-        unfinished = [_describe(*calls[i]) for i in range(len(calls)) if i not in results]
+        _drop_worker_pool(pool)
+        unfinished = [_describe(*calls[i]) for i in range(len(calls)) if i not in finished]
         raise BrokenProcessPool(
             f"a run_jobs worker process died abruptly (killed by a signal or the "
             f"out-of-memory killer?) while these calls had not finished: {unfinished}. "
             "Finished work is kept: rerun the same command to resume") from err
-    except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)
+    except (Exception, GeneratorExit):
+        wait(running)  # a call's error or an early close: let the running calls finish
         raise
-    finally:
-        pool.shutdown(wait=True)
+    except BaseException:  # e.g. KeyboardInterrupt: stop the workers too
+        _drop_worker_pool(pool)
+        raise
+
+
+# The workers of the last run_jobs call, kept for the next one with the same (jobs, threads,
+# sys.path): a spawned worker imports with the sys.path its parent had when it started.
+_POOL: dict[tuple, ProcessPoolExecutor] = {}
+
+
+def _worker_pool(jobs: int, threads: int) -> ProcessPoolExecutor:
+    key = (jobs, threads, tuple(sys.path))
+    with _LOCKS_GUARD:
+        pool = _POOL.get(key)
+        if pool is not None:
+            return pool
+        for old in _POOL.values():  # one set of idle workers at most
+            old.shutdown(wait=False)
+        _POOL.clear()
+        # spawn, not fork: forked children of a process that already ran torch/OpenMP or
+        # opened a GL context can deadlock.
+        pool = ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_init_worker, initargs=(threads, os.getpid()))
+        _POOL[key] = pool
+        return pool
+
+
+def _drop_worker_pool(pool: ProcessPoolExecutor) -> None:
+    with _LOCKS_GUARD:
+        for key in [k for k, p in _POOL.items() if p is pool]:
+            del _POOL[key]
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _call_in_worker(locks: Sequence[str], fn: Callable, args: tuple) -> Any:
+    # The parent's folder locks as of this call (a kept worker may serve several runs).
+    with _LOCKS_GUARD:
+        _INHERITED.clear()
+        _INHERITED.update(locks)
+    return fn(*args)
 
 
 def _describe(fn: Callable, args: tuple) -> str:
@@ -324,8 +383,7 @@ def _describe(fn: Callable, args: tuple) -> str:
     return f"{getattr(fn, '__qualname__', repr(fn))}({', '.join(shown)})"
 
 
-def _init_worker(threads: int, parent: int, locks: Sequence[str]) -> None:
-    _INHERITED.update(locks)
+def _init_worker(threads: int, parent: int) -> None:
     _die_with_parent(parent)
     import torch
     torch.set_num_threads(threads)
