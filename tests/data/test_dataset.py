@@ -138,6 +138,32 @@ def test_worker_processes_give_a_deterministic_resumable_dataset(tmp_path, exper
         DatasetConfig(episodes=64, shard_episodes=32, num_workers=12)
 
 
+def test_shards_made_side_by_side_equal_one_collector_and_resume(tmp_path, experts,
+                                                                  reference, monkeypatch):
+    # Two one-thread worker processes (this process may have more threads): the same bytes.
+    side = generate_dataset(CFG, tmp_path / "side", *experts, progress=False, jobs=2,
+                            threads=1)
+    assert (load_memmap(side / "data") == load_memmap(reference / "data")).all()
+    meta = json.loads((side / "meta.json").read_text())
+    assert meta["shards_done"] == [0, 1, 2] and meta["transitions"] == 72
+    # A run stopped after one shard resumes side by side with the rest only.
+    real = dataset_module._shards_side_by_side
+
+    def first_only(cfg, todo, *args):
+        for shard, rows in real(cfg, todo, *args):
+            yield shard, rows
+            raise KeyboardInterrupt("killed after one shard")
+
+    monkeypatch.setattr(dataset_module, "_shards_side_by_side", first_only)
+    with pytest.raises(KeyboardInterrupt):
+        generate_dataset(CFG, tmp_path / "run", *experts, progress=False, jobs=2, threads=1)
+    assert len(json.loads((tmp_path / "run" / "meta.json").read_text())["shards_done"]) == 1
+    monkeypatch.setattr(dataset_module, "_shards_side_by_side", real)
+    resumed = generate_dataset(CFG, tmp_path / "run", *experts, progress=False, jobs=2,
+                               threads=1)
+    assert (load_memmap(resumed / "data") == load_memmap(reference / "data")).all()
+
+
 def test_unknown_backend_is_refused(tmp_path, experts):
     with pytest.raises(ValueError, match="unknown backend"):
         generate_dataset(CFG, tmp_path, *experts, progress=False, backend="dask")

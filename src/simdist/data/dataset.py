@@ -38,7 +38,7 @@ from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 from simdist.envs import DynamicsRandomisation, make_env
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.memmap import CorruptDataError, folder_manifest, load_memmap
-from simdist.utils.stages import RunFolderError, field_defaults
+from simdist.utils.stages import RunFolderError, field_defaults, iter_jobs
 
 _DROP_NEXT = ("observation", "state", "pixels", "dynamics", "perturbation", "mixture", "is_init")
 
@@ -276,9 +276,20 @@ def _ray_shards(cfg: DatasetConfig, todo, expert, snapshots, max_in_flight: int 
         yield pending.pop(done[0]), ray.get(done[0])
 
 
+def _shards_side_by_side(cfg: DatasetConfig, todo, expert, snapshots, jobs: int,
+                         threads: int | None):
+    """Yields ``(shard, rows)`` as ``jobs`` worker processes finish them, one
+    :func:`generate_shard` call per shard (the same bytes as one collector makes)."""
+    calls = [(generate_shard, (cfg, shard, expert, list(snapshots))) for shard in todo]
+    with contextlib.closing(iter_jobs(calls, jobs, threads=threads)) as finished:
+        for i, rows in finished:
+            yield todo[i], rows
+
+
 def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=(),
                      progress: bool = True, backend: str = "local",
-                     max_in_flight: int | None = None) -> Path:
+                     max_in_flight: int | None = None, jobs: int = 1,
+                     threads: int | None = None) -> Path:
     """Generates (or resumes) a dataset under ``out_dir``; returns its path.
 
     Args:
@@ -292,6 +303,9 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
             cluster ``ray.init`` connected to, or a local one), ``cfg.num_workers`` CPUs
             each. Shards are identical either way; this process writes every row.
         max_in_flight: Ray only: shards generated at once (default: the cluster's CPUs).
+        jobs: local only: shards generated side by side, each in one of ``jobs`` spawned
+            processes (:func:`~simdist.utils.iter_jobs`) with ``threads`` torch threads
+            (default ``cpu_count // jobs``); 1: one collector in this process.
     """
     if backend not in ("local", "ray"):
         raise ValueError(f"unknown backend {backend!r}: use 'local' or 'ray'")
@@ -314,8 +328,12 @@ def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=
             shutil.rmtree(out / "data")
         meta = {"config": config, "versions": _versions(), "shards_done": [], "seconds": 0.0}
     todo = [s for s in range(cfg.shards) if s not in meta["shards_done"]]
-    shards = (_ray_shards(cfg, todo, expert, snapshots, max_in_flight) if backend == "ray"
-              else collect_shards(cfg, todo, expert, snapshots))
+    if backend == "ray":
+        shards = _ray_shards(cfg, todo, expert, snapshots, max_in_flight)
+    elif jobs > 1:
+        shards = _shards_side_by_side(cfg, todo, expert, snapshots, jobs, threads)
+    else:
+        shards = collect_shards(cfg, todo, expert, snapshots)
     bar = tqdm(total=cfg.shards, initial=cfg.shards - len(todo), disable=not progress,
                desc="dataset shards")
     start = time.perf_counter()

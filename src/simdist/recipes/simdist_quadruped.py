@@ -108,7 +108,8 @@ class Config:
     # end on 2 quiet cores, 2026-11-26).
     dataset_episodes: int = 1536
     dataset_shard_episodes: int = 32  # episodes per shard (the unit of resume and workers)
-    # processes generating shards. Not part of the results: a shard is the same bytes
+    # processes stepping each shard's worlds (TorchRL's ParallelEnv; the shards themselves
+    # run side by side per `jobs`). Not part of the results: a shard is the same bytes
     # whichever process makes it, so a run may resume (or be copied) with another count.
     dataset_workers: int = 1
     # Gaussian action noise on every step outside the perturbation bursts
@@ -212,12 +213,13 @@ class Config:
     # member's weights depend on its seed and thread count only, so this changes no
     # figure beyond what --threads does. Not part of the results.
     ensemble_jobs: int = 0
-    # processes for the independent parts of the planner stages: the zero-shot stage's two
-    # evaluations, a round's collection batches, its three methods (each finetuned and
-    # evaluated in its own process) and the two recordings (0: as many as the torch threads
-    # allow, one thread or more each; 1: one after the other in this process). With members
-    # (ensemble_size > 1) a round's methods stay one after the other, their members side by
-    # side (ensemble_jobs). A second torch thread speeds the planner up only 1.5-1.8x, so
+    # processes for the independent parts of the stages: the dataset's shards, the
+    # zero-shot stage's two evaluations, a round's collection batches, its three methods
+    # (each finetuned and evaluated in its own process) and the two recordings (0: as many
+    # as the torch threads allow, one thread or more each; 1: one after the other in this
+    # process). With members (ensemble_size > 1) a round's methods stay one after the
+    # other, their members side by side (ensemble_jobs). A shard is the same bytes in any
+    # process. A second torch thread speeds the planner up only 1.5-1.8x, so
     # on 2 cores the zero-shot stage took 146 s side by side against 196 s in one process
     # (benchmarks/README.md, "Side by side: the recipe's planner stages on two cores"). A
     # figure depends on its seeds and each process's thread count only, so this changes no
@@ -552,7 +554,9 @@ def load_experts(expert_path: str) -> tuple[Expert, list[Expert]]:
 
 
 def dataset_stage(cfg: Config, expert_path: str, stage_dir: Path) -> dict:
-    path = generate_dataset(dataset_config(cfg), stage_dir / "data", *load_experts(expert_path))
+    jobs, threads = stage_jobs(cfg, dataset_config(cfg).shards)
+    path = generate_dataset(dataset_config(cfg), stage_dir / "data", *load_experts(expert_path),
+                            jobs=jobs, threads=threads)
     meta = read_dataset_meta(path)
     data = load_memmap(path / "data", manifest=meta["files"])
     return {"path": str(path), "transitions": meta["transitions"], "bytes": meta["bytes"],
