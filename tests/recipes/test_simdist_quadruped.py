@@ -588,8 +588,9 @@ def test_the_planner_stages_side_by_side_give_the_figures_of_one_process(tmp_pat
     assert recipe.stage_jobs(recipe.Config(threads=2), 3) == (2, 1)  # the 2-core default
     assert recipe.stage_jobs(recipe.Config(threads=2, jobs=1), 3) == (1, 2)
     assert recipe.stage_jobs(recipe.Config(threads=4, jobs=8), 2) == (2, 2)
-    # one thread per process either way: the zero-shot evaluations, both rounds' collection
-    # batches (3 episodes, 2 at a time) and their three methods side by side or in turn
+    # one thread per process either way: the dataset's two shards, the zero-shot
+    # evaluations, both rounds' collection batches (3 episodes, 2 at a time) and their
+    # three methods side by side or in turn
     common = ("--preset", "tiny", "--expert", tiny_expert, "--no-record", "--threads", 1)
     side, turn = tmp_path / "side", tmp_path / "turn"
     for jobs, out in ((2, side), (1, turn)):
@@ -597,6 +598,8 @@ def test_the_planner_stages_side_by_side_give_the_figures_of_one_process(tmp_pat
         assert proc.returncode == 0, proc.stderr
     a, b = (json.loads((out / "results.json").read_text()) for out in (side, turn))
     assert a["curves"] == b["curves"] and a["planner_zero_shot"] == b["planner_zero_shot"]
+    datasets = [load_memmap(out / "stages" / "dataset" / "data" / "data") for out in (side, turn)]
+    assert datasets[0].shape[0] == 4 and (datasets[0] == datasets[1]).all()
     for k in (1, 2):
         stages = [out / "stages" / f"round_{k}" for out in (side, turn)]
         first, second = (load_memmap(s / "data") for s in stages)
