@@ -111,7 +111,9 @@ def as_slices(td: TensorDict, slice_len: int, batch_slices: int) -> TensorDictRe
     episodes, steps = td.shape
     data = td.clone()
     data.set("episode", torch.arange(episodes)[:, None].expand(episodes, steps).clone())
-    sampler = SliceSampler(slice_len=slice_len, traj_key="episode", strict_length=True)
+    # a fixed buffer: episode boundaries computed once, not at every sample
+    sampler = SliceSampler(slice_len=slice_len, traj_key="episode", strict_length=True,
+                           cache_values=True)
     return TensorDictReplayBuffer(storage=TensorStorage(data.reshape(-1)), sampler=sampler,
                                   batch_size=slice_len * batch_slices)
 
