@@ -120,6 +120,18 @@ def test_slices_never_cross_episode_boundaries(reference):
         assert (steps[:, 1:] - steps[:, :-1] == 1).all()
 
 
+def test_a_buffer_of_some_entries_samples_the_same_slices_of_those_entries(reference):
+    keys = ["observation", ("next", "reward")]
+    torch.manual_seed(1)
+    full = [load_dataset(reference, slice_len=4, batch_size=8).sample() for _ in range(5)]
+    torch.manual_seed(1)
+    some = [load_dataset(reference, slice_len=4, batch_size=8, keys=keys).sample()
+            for _ in range(5)]
+    assert "state" not in some[0].keys() and "episode" in some[0].keys()
+    for a, b in zip(full, some):
+        assert (a.select(*keys, "episode") == b.select(*keys, "episode")).all()
+
+
 def test_bad_dataset_config():
     with pytest.raises(ValueError, match="multiple of shard_episodes"):
         DatasetConfig(episodes=5, shard_episodes=2)

@@ -23,9 +23,10 @@ import time
 from dataclasses import dataclass, field
 from importlib import metadata as importlib_metadata
 from pathlib import Path
+from typing import Sequence
 
 import torch
-from tensordict import TensorDict
+from tensordict import NestedKey, TensorDict
 from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
@@ -374,11 +375,14 @@ def read_dataset_meta(path: str | Path) -> dict:
     return meta
 
 
-def load_dataset(path: str | Path, slice_len: int, batch_size: int) -> TensorDictReplayBuffer:
+def load_dataset(path: str | Path, slice_len: int, batch_size: int,
+                 keys: Sequence[NestedKey] | None = None) -> TensorDictReplayBuffer:
     """A replay buffer over the memory-mapped dataset that samples whole-episode slices.
 
     Slices of ``slice_len`` consecutive steps never cross an episode boundary (TorchRL's
     ``SliceSampler`` keyed on ``"episode"``); samples come back as ``[batch, slice_len]``.
+    ``keys``: only these entries are stored and sampled (``"episode"`` is always kept), a
+    view of the memory map that makes each sample cheaper; default: every entry.
     """
     path = Path(path)
     meta = read_dataset_meta(path)
@@ -391,6 +395,8 @@ def load_dataset(path: str | Path, slice_len: int, batch_size: int) -> TensorDic
             f"recipes/generate_dataset.py` with the same flags and --out {path} (a recipe's "
             "dataset stage does this when its stages/dataset.json record is deleted)")
     data = load_memmap(path / "data", manifest=meta["files"]).reshape(-1)
+    if keys is not None:
+        data = data.select(*dict.fromkeys([*keys, "episode"]))
     if batch_size % slice_len:
         raise ValueError("batch_size counts transitions: make it a multiple of slice_len")
     # The storage never changes: cache the episodes' boundaries instead of rescanning every

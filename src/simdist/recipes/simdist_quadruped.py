@@ -46,7 +46,8 @@ from simdist.envs import TASKS, Layout, describe_ranges, get_target, make_env
 from simdist.experts import Expert, SACExpertConfig, resolve_expert, train_sac_expert
 from simdist.modules import SIMDIST_SIZES, SimDistWorldModel, StateDecoder, WorldModelEnsemble
 from simdist.objectives import ProbeLoss
-from simdist.objectives.simdist_pretrain import CONSISTENCY_KINDS, latent_prediction_skill
+from simdist.objectives.simdist_pretrain import (CONSISTENCY_KINDS, SimDistPretrainLoss,
+                                                 latent_prediction_skill)
 from simdist.modules.planner import PlannerConfig
 from simdist.modules.simdist_model import DYNAMICS_RESIDUALS
 from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, episode_stats,
@@ -689,8 +690,16 @@ def pretrain_member_job(cfg: Config, dataset: str, expert_path: str, stage_dir: 
     how many of those updates its checkpoint already held."""
     done = updates_done(member_dir(stage_dir, i) / "training.pt")
     torch.manual_seed(cfg.seed)
-    buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
+    buffer = pretraining_buffer(cfg, dataset)
     return pretrain_member(cfg, buffer, buffer[:], expert_path, stage_dir, i)[1], done
+
+
+def pretraining_buffer(cfg: Config, dataset: str):
+    """The dataset's slices with the entries the pretraining loss reads and no others
+    (sampling every entry took about twice as long; benchmarks/README.md, "Pretraining's
+    sampling")."""
+    keys = dataclasses.astuple(SimDistPretrainLoss.default_keys())
+    return load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices, keys=keys)
 
 
 def member_jobs(cfg: Config, members: int | None = None) -> tuple[int, int]:
@@ -720,7 +729,7 @@ def pretrain_stage(cfg: Config, dataset: str, expert_path: str, stage_dir: Path,
         for i, (history, done) in enumerate(histories):
             log_trained(logger, "pretrain" if i == 0 else f"pretrain/member_{i}", history, done)
     torch.manual_seed(cfg.seed)
-    buffer = load_dataset(dataset, cfg.slice_len, cfg.slice_len * cfg.batch_slices)
+    buffer = pretraining_buffer(cfg, dataset)
     data = buffer[:]  # the whole memory-mapped dataset (a view: nothing is copied)
     obs = data["observation"]
     agent, history = pretrain_member(cfg, buffer, data, expert_path, stage_dir, 0, logger)
