@@ -379,17 +379,22 @@ def test_planner_flags_reach_the_planner_config():
 
 
 def test_the_collection_planner_is_the_planner_unless_its_own_search_is_set():
-    from simdist.recipes.simdist_quadruped import Config
-    assert Config().collect_planner() == Config().planner()
-    cheap = Config(collect_planner_samples=48, collect_planner_iterations=2,
-                   collect_planner_elites=6)
+    from simdist.recipes.simdist_quadruped import PRESETS, Config
+    unset = dict(collect_planner_samples=0, collect_planner_iterations=0,
+                 collect_planner_elites=0)
+    assert Config(**unset).collect_planner() == Config().planner()
+    # the default collects with about half the search and evaluates with the full one
     expected = dataclasses.replace(Config().planner(), num_samples=48, iterations=2,
                                    num_elites=6)
-    assert cheap.collect_planner() == expected
-    assert cheap.planner() == Config().planner()  # evaluation keeps the full search
+    assert Config().collect_planner() == expected
+    assert Config().planner() == Config(**unset).planner()
     # one field set, the others follow the planner
-    assert Config(collect_planner_iterations=1).collect_planner() == dataclasses.replace(
-        Config().planner(), iterations=1)
+    assert Config(**{**unset, "collect_planner_iterations": 1}).collect_planner() == \
+        dataclasses.replace(Config().planner(), iterations=1)
+    # the presets with their own planner collect with it
+    for preset in ("tiny", "paper"):
+        cfg = Config(**PRESETS[preset])
+        assert cfg.collect_planner() == cfg.planner(), preset
 
 
 def test_collection_plans_with_the_collection_planner_and_evaluation_with_the_planner(

@@ -303,10 +303,13 @@ class Config:
     # those whose data the full 64 x 3 search collected (slippery_slope, seeds 3 and 4,
     # 8 minutes, both evaluated at 64 x 3: 66% vs 67%), while evaluating with the cheap
     # search costs ~7 points (benchmarks/README.md, "Two members at one model's planner
-    # cost, through the whole recipe"). So collection can run cheaper than evaluation.
-    collect_planner_samples: int = field(default=0, metadata={ABSENT_MEANS: 0})
-    collect_planner_iterations: int = field(default=0, metadata={ABSENT_MEANS: 0})
-    collect_planner_elites: int = field(default=0, metadata={ABSENT_MEANS: 0})
+    # cost, through the whole recipe"). So the default collects with 48 x 2 (6 elites),
+    # about half the search, and evaluates with the full one: one model on slippery_slope,
+    # three seeds paired with the full search's collection: 8 minutes +0 [-4, +4] points
+    # (64% either way), 2 minutes +7 [0, +13] (benchmarks/README.md, "Within 30 minutes").
+    collect_planner_samples: int = field(default=48, metadata={ABSENT_MEANS: 0})
+    collect_planner_iterations: int = field(default=2, metadata={ABSENT_MEANS: 0})
+    collect_planner_elites: int = field(default=6, metadata={ABSENT_MEANS: 0})
     # target rounds: cumulative minutes of 50 Hz target data after each round. Two rounds
     # (3.6 and 4.9 min on 2 cores with the wide model) keep the whole run at ~21 min
     # (README, recipe section); --budgets-min 1 2 4 8 for the curve.
@@ -488,10 +491,16 @@ PRESETS = {
              "model_horizon": 3, "pretrain_updates": 4, "slice_len": 8, "batch_slices": 4,
              "planner_horizon": 3, "planner_samples": 16, "planner_iterations": 1,
              "planner_elites": 4, "budgets_min": [0.02, 0.04], "collect_episodes": 2,
-             "finetune_updates": 3, "sac_batch_size": 16, "probe_updates": 3},
+             "finetune_updates": 3, "sac_batch_size": 16, "probe_updates": 3,
+             # collects with its own (smaller) planner
+             "collect_planner_samples": 0, "collect_planner_iterations": 0,
+             "collect_planner_elites": 0},
     "paper": {"episodes": 15, "episode_steps": 500, "dataset_episodes": 8192,
               "dataset_shard_episodes": 64, "dataset_workers": 4, "model_size": "paper",
               "model_latent_dim": 0,  # the reference's 64
+              # the reference collects with the planner it evaluates
+              "collect_planner_samples": 0, "collect_planner_iterations": 0,
+              "collect_planner_elites": 0,
               "mixed_precision": "none",  # the GPU path as measured (float32)
               "planner_precision": "none",
               # 51: the reference's 25-step history and 25-step horizon, plus the step
