@@ -17,6 +17,7 @@ import contextlib
 import functools
 import itertools
 import json
+import math
 import os
 import shutil
 import time
@@ -277,14 +278,23 @@ def _ray_shards(cfg: DatasetConfig, todo, expert, snapshots, max_in_flight: int 
         yield pending.pop(done[0]), ray.get(done[0])
 
 
+def _shard_chunk(cfg: DatasetConfig, shards: list[int], expert, snapshots) -> list:
+    """``[(shard, rows), ...]`` of :func:`collect_shards` (a worker's call)."""
+    return list(collect_shards(cfg, shards, expert, snapshots))
+
+
 def _shards_side_by_side(cfg: DatasetConfig, todo, expert, snapshots, jobs: int,
                          threads: int | None):
-    """Yields ``(shard, rows)`` as ``jobs`` worker processes finish them, one
-    :func:`generate_shard` call per shard (the same bytes as one collector makes)."""
-    calls = [(generate_shard, (cfg, shard, expert, list(snapshots))) for shard in todo]
+    """Yields ``(shard, rows)`` as ``jobs`` worker processes finish them (the same bytes
+    as one collector makes). Each call makes a run of consecutive shards with one
+    collector, about four calls per worker: building the batched worlds costs about as
+    much as a shard, so one call per shard would spend the second core on rebuilding."""
+    size = max(1, math.ceil(len(todo) / (4 * jobs)))
+    chunks = [list(todo[i:i + size]) for i in range(0, len(todo), size)]
+    calls = [(_shard_chunk, (cfg, chunk, expert, list(snapshots))) for chunk in chunks]
     with contextlib.closing(iter_jobs(calls, jobs, threads=threads)) as finished:
-        for i, rows in finished:
-            yield todo[i], rows
+        for _, rows in finished:
+            yield from rows
 
 
 def generate_dataset(cfg: DatasetConfig, out_dir: str | Path, expert, snapshots=(),
