@@ -51,6 +51,16 @@ def collect_seconds(run: str, worlds: int, episodes: int, search: str | None = N
     return seconds
 
 
+def child_seconds(args, worlds: int, search: str | None = None) -> float:
+    """:func:`collect_seconds` in a fresh process (no warmed allocator or kernels carried
+    over from the previous measurement)."""
+    command = [sys.executable, __file__, "--run", args.run, "--episodes", str(args.episodes),
+               "--threads", str(args.threads), "--one", str(worlds)]
+    out = subprocess.run(command + (["--search", search] if search else []),
+                         capture_output=True, text=True, check=True)
+    return float(out.stdout.strip().splitlines()[-1])
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", required=True, help="a finished recipe run (seed folder)")
@@ -74,11 +84,7 @@ def main():
         print(f"{'search':>10s} {'seconds':>8s} {'vs first':>9s}")
         reference = None
         for search in args.searches:
-            out = subprocess.run([sys.executable, __file__, "--run", args.run, "--episodes",
-                                  str(args.episodes), "--threads", str(args.threads), "--one",
-                                  str(args.worlds[0]), "--search", search],
-                                 capture_output=True, text=True, check=True)
-            seconds = float(out.stdout.strip().splitlines()[-1])
+            seconds = child_seconds(args, args.worlds[0], search)
             reference = reference or seconds
             print(f"{search:>10s} {seconds:8.1f} {seconds / reference:8.2f}x")
         return
@@ -87,11 +93,7 @@ def main():
     print(f"{'worlds at once':>14s} {'batches':>8s} {'seconds':>8s} {'vs first':>9s}")
     reference = None
     for worlds in args.worlds:
-        # a fresh process per width: no warmed allocator or kernels carried over
-        out = subprocess.run([sys.executable, __file__, "--run", args.run, "--episodes",
-                              str(args.episodes), "--threads", str(args.threads), "--one",
-                              str(worlds)], capture_output=True, text=True, check=True)
-        seconds = float(out.stdout.strip().splitlines()[-1])
+        seconds = child_seconds(args, worlds)
         reference = reference or seconds
         batches = -(-args.episodes // worlds)
         print(f"{worlds:14d} {batches:8d} {seconds:8.1f} {seconds / reference:8.2f}x")
