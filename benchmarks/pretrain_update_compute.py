@@ -24,6 +24,7 @@ import torch
 from torch.profiler import ProfilerActivity, profile
 
 from simdist.recipes.simdist_quadruped import Config, new_agent
+from simdist.utils.machine import matmul_gflops
 from simdist.utils.precision import resolve_precision
 from simdist_pretrain_precision import make_batch
 
@@ -44,16 +45,6 @@ def flops_per_update(update, batch, updates: int = 3) -> float:
     return sum(event.flops for event in prof.key_averages()) / updates
 
 
-def matmul_gflops(rows: int, width: int = 512, repeats: int = 100) -> float:
-    a, w = torch.randn(rows, width), torch.randn(width, width)
-    for _ in range(5):
-        a @ w
-    start = time.perf_counter()
-    for _ in range(repeats):
-        a @ w
-    return 2 * rows * width * width * repeats / (time.perf_counter() - start) / 1e9
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--updates", type=int, default=40)
@@ -72,7 +63,7 @@ def main():
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, "
           f"precision {precision}, {sum(p.numel() for p in agent.world_model.parameters())} "
           f"parameters")
-    reference = matmul_gflops(rows)
+    reference = matmul_gflops(rows, seconds=1.0)
     flops = flops_per_update(agent.pretrain_update, batch)
     eager = ms_per_update(agent.pretrain_update, batch, args.updates)
     achieved = flops / eager / 1e6

@@ -49,6 +49,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     auto = resolve_precision("auto", "cpu")
     assert results["precision"] == {"mixed_precision": auto, "planner_precision": auto}
     assert f"precision on cpu: training {auto}, planning {auto}" in proc.stdout
+    # the machine its timings were measured on, measured with the run's one thread
+    assert results["machine"]["torch_threads"] == 1
+    assert results["machine"]["matmul_gflops"] > 0
+    assert "machine: " + results["machine"]["cpu"] in proc.stdout
     assert set(results["expert_zero_shot"]) == {"sim", "slippery_slope"}
     assert set(results["planner_zero_shot"]) == {"sim", "slippery_slope"}
     assert results["dataset"]["transitions"] == 4 * 20

@@ -43,6 +43,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
                 "--teacher-pixels", "always")
     assert proc.returncode == 0, proc.stderr
     results = json.loads((tmp_path / "results.json").read_text())
+    assert results["machine"]["logical_cpus"] >= 1  # what its timings were measured on
     task = results["results"]["cartpole-balance"]
     assert list(task) == METHODS
     for name in METHODS:

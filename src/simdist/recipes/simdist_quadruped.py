@@ -61,6 +61,7 @@ from simdist.utils import (RunFolderError, StageRunner, load_checkpoint, load_me
                            write_json_atomic)
 from simdist.utils.cli import (check, check_builds, check_positive, exit_on_folder_errors,
                                parse_config)
+from simdist.utils.machine import describe_machine, machine_line
 from simdist.utils.precision import PRECISIONS, resolve_precision
 from simdist.utils.stages import ABSENT_MEANS, field_defaults, read_json
 from simdist.viz import record_planning_episode
@@ -1187,6 +1188,8 @@ def run(cfg: Config) -> dict:
                  for name in ("mixed_precision", "planner_precision")}
     print(f"precision on {cfg.device}: training {precision['mixed_precision']}, planning "
           f"{precision['planner_precision']} (none = float32)")
+    machine = describe_machine()  # timings in results.json mean little without it
+    print("machine: " + machine_line(machine))
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
 
     def stage(name, fn):
@@ -1245,7 +1248,8 @@ def run(cfg: Config) -> dict:
                "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
                "planner_zero_shot": planner_zero_shot, "probe": probe,
                "recordings": recordings, "curves": results, "timings_s": runner.timings,
-               "torch_threads": torch.get_num_threads(), "precision": precision}
+               "torch_threads": torch.get_num_threads(), "precision": precision,
+               "machine": machine}
     write_json_atomic(out / "results.json", summary)
     plot_results(results, get_target(cfg.target).name, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")

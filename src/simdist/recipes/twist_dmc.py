@@ -67,6 +67,7 @@ from simdist.utils import (StageRunner, load_checkpoint, resolve_device, run_job
                            write_json_atomic)
 from simdist.utils.cli import (check, check_builds, check_positive, exit_on_folder_errors,
                                parse_config)
+from simdist.utils.machine import describe_machine, machine_line
 from simdist.utils.stages import ABSENT_MEANS
 from simdist.viz.student_view import record_student_episode
 
@@ -1038,6 +1039,8 @@ def main(argv=None):
         stages.update({suffix: name for suffix, (name, _) in PIXEL_DREAMERS.items()})
         stages[ASYMMETRIC_SAC[0]] = ASYMMETRIC_SAC[1]
     start = time.perf_counter()
+    machine = describe_machine()  # timings in results.json mean little without it
+    print("machine: " + machine_line(machine))
     run_jobs(chains, cfg.jobs, after=after)
 
     results, records = {}, {}
@@ -1083,7 +1086,7 @@ def main(argv=None):
     write_json_atomic(out / "results.json",  # a crash mid-write keeps the previous file
         {"config": dataclasses.asdict(cfg), "results": results, "summary": summarise(results),
          "runs": records, "recording": recording, "timings_s": runner.timings,
-         "wall_s": wall, "jobs": cfg.jobs})
+         "wall_s": wall, "jobs": cfg.jobs, "machine": machine})
     plot_results(results, out / "returns.png")
     print(f"wrote {out / 'results.json'} and {out / 'returns.png'}")
     if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
