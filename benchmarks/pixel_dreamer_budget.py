@@ -29,6 +29,7 @@ Usage:
         --reward-scale 100                     # the reward weighs more in the world model
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
         --encoder keypoints                    # spatial-softmax keypoints read the image
+    python benchmarks/pixel_dreamer_budget.py --agent state_recon --steps 6000  # State Recon., no DR
     python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
     python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
@@ -61,8 +62,10 @@ def main(argv=None) -> None:
                         help="one update per this many agent steps (the recipe's default: 20)")
     parser.add_argument("--dr", action="store_true",
                         help="train on the recipe's visually randomised scenes (+ DR)")
-    parser.add_argument("--agent", choices=["dreamer", "sac"], default="dreamer",
-                        help="a pixel Dreamer, or the Asymmetric SAC baseline")
+    parser.add_argument("--agent", choices=["dreamer", "state_recon", "sac"], default="dreamer",
+                        help="a pixel Dreamer, the pixel Dreamer whose decoder reconstructs "
+                             "the privileged state (TWIST's Dreamer State Recon.), or the "
+                             "Asymmetric SAC baseline")
     parser.add_argument("--frames", type=int,
                         help="SAC: stacked images the actor reads (default: the preset's "
                              "sac_frames)")
@@ -111,14 +114,14 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     sac_options = {"frames": "sac_frames", "batch": "sac_batch", "n_step": "sac_n_step",
                    "tau": "sac_tau"}
-    if args.agent == "dreamer" and any(getattr(args, o) is not None for o in sac_options):
+    if args.agent != "sac" and any(getattr(args, o) is not None for o in sac_options):
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
     dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr",
                        "return_normalisation", "actor_gradient", "reward_scale", "encoder")
     if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
         parser.error("--slices, --actor-distribution, --exploration, --actor-lr, "
                      "--return-normalisation, --actor-gradient, --reward-scale and --encoder "
-                     "are the Dreamer's (--agent dreamer)")
+                     "are the Dreamer's (--agent dreamer or state_recon)")
     preset = recipe.Config(**recipe.PRESETS[args.preset])
     # a Dreamer actor option that is set names the run's folder and overrides its config
     # fields; unset, the preset's applies
@@ -163,14 +166,20 @@ def main(argv=None) -> None:
             cfg, args.task, args.seed, stage_dir,
             visual=VisualRandomisation.training() if args.dr else None)
     else:
-        name = "dreamer_dr" if args.dr else "dreamer_no_dr"
-        method = recipe.PIXEL_DREAMERS[name][0]
+        state_recon = args.agent == "state_recon"
+        if state_recon:  # the recipe's stage trains it with DR; --dr chooses here
+            name = "dreamer_state_recon" if args.dr else "dreamer_state_recon_no_dr"
+            method = "Dreamer State Recon." + (" + DR" if args.dr else ", no DR")
+        else:
+            name = "dreamer_dr" if args.dr else "dreamer_no_dr"
+            method = recipe.PIXEL_DREAMERS[name][0]
         stage_dir = Path(args.out) / (f"{args.task}_s{args.seed}_{name}_every{args.train_every}"
                                       + (f"_slices{args.slices}"
                                          if args.slices != preset.slices else "")
                                       + suffix + camera)
-        result = recipe.pixel_dreamer_stage(cfg, args.task, args.seed,
-                                            recipe.PIXEL_DREAMERS[name][1], stage_dir)
+        visual = VisualRandomisation.training() if args.dr else None
+        result = recipe.pixel_dreamer_stage(cfg, args.task, args.seed, visual, stage_dir,
+                                            state_recon=state_recon)
     own_scene = result.get("own_scene")
     if own_scene is None:  # trained with DR: how does it do on dm_control's plain scene?
         agent = load_agent(result["agent"], map_location=args.device)
@@ -180,7 +189,7 @@ def main(argv=None) -> None:
                                      visual=None, camera_id=cfg.camera_id)
     references = recipe.references_stage(cfg, args.task, args.seed)
     summary = {"method": method, "steps": args.steps, "frames": args.frames,
-               "slices": args.slices if args.agent == "dreamer" else None,
+               "slices": args.slices if args.agent != "sac" else None,
                "camera_id": args.camera_id, "device": args.device,
                "actor_distribution": cfg.pixel_actor_distribution,
                "exploration": cfg.pixel_exploration, "actor_lr": cfg.actor_lr,

@@ -525,6 +525,15 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
                              "_n2_tau0.05" / "result_40.json").read_text())
     assert (sac["updates"], sac["frames"], sac["n_step"], sac["tau"]) == (4, 2, 2, 0.05)
     assert len(sac["own_scene"]["returns"]) == 2
+    # Dreamer State Recon. without DR (its decoder reconstructs the state): its own folder
+    proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40, "--agent",
+                      "state_recon", "--train-every", "10", "--out", out, capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    folder = out / "cartpole-balance_s0_dreamer_state_recon_no_dr_every10"
+    recon = json.loads((folder / "result_40.json").read_text())
+    assert (recon["method"], recon["updates"]) == ("Dreamer State Recon., no DR", 4)
+    assert len(recon["own_scene"]["returns"]) == 2
+    assert load_agent(folder / "dreamer_agent.pt").reconstruct_key == "state"
     # a Dreamer with other slices per update, from another camera: its own folder
     proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40,
                       "--train-every", "10", "--slices", "3", "--camera-id", "1", "--out", out,
