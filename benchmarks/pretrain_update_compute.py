@@ -12,7 +12,7 @@ where the CPU has it, see ``simdist_pretrain_precision.py``).
 
 Usage:
     python benchmarks/pretrain_update_compute.py                 # eager only
-    python benchmarks/pretrain_update_compute.py --compile       # and torch.compile (~1 min)
+    python benchmarks/pretrain_update_compute.py --compile       # and torch.compile (first call 7-60 s)
 """
 
 from __future__ import annotations
