@@ -30,6 +30,7 @@ Usage:
     python benchmarks/pixel_dreamer_budget.py --train-every 4 --steps 10000 \
         --encoder keypoints                    # spatial-softmax keypoints read the image
     python benchmarks/pixel_dreamer_budget.py --agent state_recon --steps 6000  # State Recon., no DR
+    python benchmarks/pixel_dreamer_budget.py --agent state_recon --raw-state-target --steps 6000
     python benchmarks/pixel_dreamer_budget.py --agent sac --steps 12000   # the recipe's SAC
     python benchmarks/pixel_dreamer_budget.py --agent sac --n-step 1 --tau 0.005 --steps 12000
     python benchmarks/pixel_dreamer_budget.py --preset tiny --steps 40 --train-every 10  # the test
@@ -99,6 +100,9 @@ def main(argv=None) -> None:
     parser.add_argument("--encoder", choices=list(PixelEncoder.ARCHS),
                         help="how the Dreamer reads its image (default: the preset's "
                              "pixel_encoder, the CNN)")
+    parser.add_argument("--raw-state-target", action="store_true",
+                        help="State Recon.: reconstruct the raw state (before 2026-12-07) "
+                             "instead of the preset's standardised one")
     parser.add_argument("--actor-lr", type=float,
                         help="Dreamer: actor and critic learning rate (default: the preset's)")
     parser.add_argument("--camera-id", type=int,
@@ -118,6 +122,8 @@ def main(argv=None) -> None:
         parser.error("--frames, --batch, --n-step and --tau are the SAC's (--agent sac)")
     dreamer_options = ("slices", "actor_distribution", "exploration", "actor_lr",
                        "return_normalisation", "actor_gradient", "reward_scale", "encoder")
+    if args.raw_state_target and args.agent != "state_recon":
+        parser.error("--raw-state-target is State Recon.'s (--agent state_recon)")
     if args.agent == "sac" and any(getattr(args, o) is not None for o in dreamer_options):
         parser.error("--slices, --actor-distribution, --exploration, --actor-lr, "
                      "--return-normalisation, --actor-gradient, --reward-scale and --encoder "
@@ -137,6 +143,9 @@ def main(argv=None) -> None:
         if value is not None:
             suffix += f"_{tag}{value:g}" if isinstance(value, float) else f"_{tag}{value}"
             actor.update(dict.fromkeys(fields, value))
+    if args.raw_state_target:
+        suffix += "_raw_state"
+        actor["state_recon_standardise"] = False
     for option, field in sac_options.items():  # unset: the preset's own setting
         if getattr(args, option) is None:
             setattr(args, option, getattr(preset, field))
@@ -196,6 +205,8 @@ def main(argv=None) -> None:
                "return_normalisation": cfg.return_normalisation,
                "actor_gradient": cfg.pixel_actor_gradient,
                "reward_scale": cfg.pixel_reward_scale, "encoder": cfg.pixel_encoder,
+               "standardised_state_target": (cfg.state_recon_standardise
+                                             if args.agent == "state_recon" else None),
                "batch": args.batch if args.agent == "sac" else None,
                "n_step": args.n_step, "tau": args.tau,
                "train_every": args.train_every, "updates": result["updates"],

@@ -151,3 +151,37 @@ def test_return_normalisation_is_kept_through_updates_checkpoints_and_resumes(tm
     assert plain.behaviour_loss.return_scale is None
     assert "return_scale" not in plain.state_dict() and "return_scale" not in plain.weights()
     assert "return_scale" not in plain.update(batch.clone())
+
+
+def test_state_recon_standardises_its_target_through_updates_checkpoints_and_resumes(tmp_path):
+    """DreamerConfig(standardise_reconstruction=True): State Recon.'s loss standardises the
+    state by running statistics that updates move, saved agents and training state dicts
+    carry; image-decoding and default agents have none."""
+    torch.manual_seed(0)
+    config = DreamerConfig(size="tiny", standardise_reconstruction=True)
+    agent = DreamerAgent.for_pixels_state_recon(1, 5, config)
+    td = TensorDict({"action": torch.zeros(2, 4, 1),
+                     "is_init": torch.zeros(2, 4, 1, dtype=torch.bool),
+                     "next": {"pixels": torch.randint(0, 255, (2, 4, 64, 64, 3),
+                                                      dtype=torch.uint8),
+                              "state": 3 + 2 * torch.randn(2, 4, 5),
+                              "reward": torch.zeros(2, 4, 1),
+                              "terminated": torch.zeros(2, 4, 1, dtype=torch.bool)}}, [2, 4])
+    agent.update(td.clone())
+    agent.update(td.clone())
+    standardiser = agent.model_loss.reconstruction_standardiser
+    assert int(standardiser.count) == 2 and standardiser.mean.shape == (5,)
+    assert float(standardiser.mean.mean()) == pytest.approx(3.0, abs=1.0)
+    loaded = DreamerAgent.load(agent.save(tmp_path / "agent.pt"))
+    assert loaded.config.standardise_reconstruction
+    for name in ("mean", "var", "count"):
+        assert torch.equal(getattr(loaded.model_loss.reconstruction_standardiser, name),
+                           getattr(standardiser, name))
+    resumed = DreamerAgent.for_pixels_state_recon(1, 5, config)
+    resumed.load_state_dict(agent.state_dict())
+    assert torch.equal(resumed.model_loss.reconstruction_standardiser.var, standardiser.var)
+    # image decoders ignore the option; the default reconstructs the raw state
+    assert DreamerAgent.for_pixels(1, config).model_loss.reconstruction_standardiser is None
+    plain = DreamerAgent.for_pixels_state_recon(1, 5, DreamerConfig(size="tiny"))
+    assert plain.model_loss.reconstruction_standardiser is None
+    assert "reconstruction_standardiser" not in plain.weights()

@@ -533,7 +533,16 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
     recon = json.loads((folder / "result_40.json").read_text())
     assert (recon["method"], recon["updates"]) == ("Dreamer State Recon., no DR", 4)
     assert len(recon["own_scene"]["returns"]) == 2
-    assert load_agent(folder / "dreamer_agent.pt").reconstruct_key == "state"
+    saved = load_agent(folder / "dreamer_agent.pt")
+    assert saved.reconstruct_key == "state" and recon["standardised_state_target"] is True
+    assert int(saved.model_loss.reconstruction_standardiser.count) == 4  # one per update
+    proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40, "--agent",
+                      "state_recon", "--raw-state-target", "--train-every", "10", "--out", out,
+                      capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    raw = load_agent(out / "cartpole-balance_s0_dreamer_state_recon_no_dr_every10_raw_state" /
+                     "dreamer_agent.pt")
+    assert raw.model_loss.reconstruction_standardiser is None
     # a Dreamer with other slices per update, from another camera: its own folder
     proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--steps", 40,
                       "--train-every", "10", "--slices", "3", "--camera-id", "1", "--out", out,

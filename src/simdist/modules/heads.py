@@ -40,6 +40,7 @@ class StateDecoder(nn.Module):
 
     def __init__(self, feature_dim: int, state_dim: int, hidden: int = 400, layers: int = 3):
         super().__init__()
+        self.state_dim = state_dim
         self.net = mlp(feature_dim, state_dim, hidden, layers)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:

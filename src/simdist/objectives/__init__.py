@@ -6,11 +6,12 @@ from simdist.objectives.dreamer import DreamerActorCriticLoss, DreamerWorldModel
 from simdist.objectives.imagined_alignment import ImaginedAlignmentLoss
 from simdist.objectives.probe import ProbeLoss
 from simdist.objectives.return_scale import ReturnScale
+from simdist.objectives.target_standardiser import TargetStandardiser
 from simdist.objectives.simdist_pretrain import (DynamicsFinetuneLoss, SimDistPretrainLoss,
                                                 latent_prediction_error, latent_prediction_skill)
 
 __all__ = ["SimdistLoss", "TwistDistillationLoss", "DreamerActorCriticLoss",
            "DreamerWorldModelLoss", "balanced_kl", "ImaginedAlignmentLoss", "ProbeLoss",
-           "ReturnScale",
+           "ReturnScale", "TargetStandardiser",
            "DynamicsFinetuneLoss", "SimDistPretrainLoss", "latent_prediction_error",
            "latent_prediction_skill"]

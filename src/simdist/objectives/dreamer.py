@@ -18,11 +18,12 @@ from torchrl.objectives.utils import hold_out_net
 from torchrl.objectives.value.functional import td_lambda_return_estimate
 
 from simdist.modules.encoders import PixelEncoder
-from simdist.modules.heads import pixels_to_target
+from simdist.modules.heads import PixelDecoder, pixels_to_target
 from simdist.modules.rssm import RSSMState
 from simdist.modules.world_model import DreamerWorldModel
 from simdist.objectives.common import SimdistLoss, sequence_batch
 from simdist.objectives.return_scale import ReturnScale
+from simdist.objectives.target_standardiser import TargetStandardiser
 
 # how the actor's objective reaches its parameters (DreamerActorCriticLoss.actor_gradient)
 ACTOR_GRADIENTS = ("dynamics", "reinforce")
@@ -49,7 +50,10 @@ class DreamerWorldModelLoss(SimdistLoss):
 
     The decoder reconstructs the observation, or with ``set_keys(reconstruction=key)``
     another vector of the same steps (TWIST's "Dreamer State Recon." baseline: images in,
-    the privileged state out).
+    the privileged state out). With a ``reconstruction_standardiser``
+    (:class:`TargetStandardiser`) a vector target is standardised per dimension by its
+    running statistics, so each dimension weighs the same in the loss and the decoder
+    predicts in standardised units.
 
     Examples:
         >>> wm = DreamerWorldModel.teacher(state_dim=3, action_dim=1, size="tiny")
@@ -75,11 +79,13 @@ class DreamerWorldModelLoss(SimdistLoss):
     def __init__(self, world_model: DreamerWorldModel, kl_scale: float = 1.0,
                  kl_balance: float = 0.8, free_nats: float = 1.0, reward_scale: float = 1.0,
                  reconstruction_scale: float = 1.0, continue_scale: float = 1.0,
+                 reconstruction_standardiser: TargetStandardiser | None = None,
                  check_inputs: bool = True):
         super().__init__(check_inputs)
         if world_model.decoder is None or world_model.reward_head is None:
             raise ValueError("DreamerWorldModelLoss needs a world model with decoder and "
                              "reward head (e.g. DreamerWorldModel.teacher(...))")
+        self.reconstruction_standardiser = reconstruction_standardiser
         self.world_model = world_model
         self.kl_scale, self.kl_balance, self.free_nats = kl_scale, kl_balance, free_nats
         self.reward_scale, self.reconstruction_scale = reward_scale, reconstruction_scale
@@ -101,6 +107,12 @@ class DreamerWorldModelLoss(SimdistLoss):
         if self.tensor_keys.reconstruction is not None:
             obs = self.read(td, "reconstruction")
         target = pixels_to_target(obs) if obs.dtype == torch.uint8 else obs
+        if self.reconstruction_standardiser is not None:
+            if isinstance(self.world_model.decoder, PixelDecoder):
+                raise ValueError(f"{type(self).__name__}: reconstruction_standardiser "
+                                 "standardises a vector target, but the decoder "
+                                 "reconstructs images")
+            target = self.reconstruction_standardiser(target)
         if prediction.shape != target.shape:
             raise ValueError(f"{type(self).__name__}: the decoder predicts "
                              f"{tuple(prediction.shape)} but the reconstruction target is "

@@ -248,6 +248,11 @@ class Config:
     # how the pixel Dreamers read their image (DreamerConfig.encoder): "dreamer", the CNN,
     # or "keypoints", spatial-softmax keypoints
     pixel_encoder: str = "dreamer"
+    # Dreamer State Recon.'s state target standardised per dimension by running statistics
+    # (DreamerConfig.standardise_reconstruction); raw, the pole's angular velocity carries
+    # ~90% of the reconstruction loss (benchmarks/README.md, "A standardised state target
+    # for Dreamer State Recon."; folders made before the field reconstructed the raw state)
+    state_recon_standardise: bool = field(default=True, metadata={ABSENT_MEANS: False})
     # the Dreamers' actor returns (teacher and pixel Dreamers; DreamerConfig.
     # return_normalisation): "none" (DreamerV2) or "percentile", divided by their running
     # 95th-5th percentile range (DreamerV3), so the entropy bonus is not swamped
@@ -382,7 +387,8 @@ class Config:
                                    exploration=self.pixel_exploration,
                                    actor_gradient=self.pixel_actor_gradient,
                                    reward_scale=self.pixel_reward_scale,
-                                   encoder=self.pixel_encoder)
+                                   encoder=self.pixel_encoder,
+                                   standardise_reconstruction=self.state_recon_standardise)
 
 
 PRESETS = {
