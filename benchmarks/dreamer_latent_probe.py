@@ -24,7 +24,12 @@ With ``--fit-random N`` there is no agent to read: the recipe's pixel Dreamer of
 ``N`` episodes of uniform random actions (the preset's episode length, slices and batch),
 and the probe and action response are measured after each of ``--updates``: how many
 updates the world model needs before its latent reads the state and its imagination
-prices actions, with no actor drifting the data.
+prices actions, with no actor drifting the data. ``--model`` chooses what trains: the pixel
+Dreamer's world model (default), Dreamer State Recon.'s (its decoder reconstructs the
+state, standardised per dimension as in the recipe, or raw with ``state_recon_raw``), or
+``frame_cnn``: the same CNN with an MLP head, supervised to regress the standardised state
+from one image (no RSSM; its ``r2_frame`` is a linear read of the head's outputs), which
+says what a single 64 px frame shows at this encoder's capacity.
 
 Usage:
     python benchmarks/dreamer_latent_probe.py --agent RUN/.../dreamer_agent.pt
@@ -33,11 +38,16 @@ Usage:
     python benchmarks/dreamer_latent_probe.py --agent A.pt --episodes 32 --steps 250 --json out.json
     python benchmarks/dreamer_latent_probe.py --fit-random 10 --updates 250 500 1000 \
         --encoder keypoints --json fit.json       # the world model alone, on random data
+    python benchmarks/dreamer_latent_probe.py --fit-random 10 --updates 500 1000 \
+        --model state_recon                       # State Recon.'s (state_recon_raw: raw target)
+    python benchmarks/dreamer_latent_probe.py --fit-random 10 --updates 500 1000 \
+        --model frame_cnn                         # the CNN supervised on one frame
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -49,6 +59,7 @@ from simdist.agents.checkpoint import load_agent
 from simdist.envs import VisualRandomisation
 from simdist.modules.encoders import PixelEncoder
 from simdist.modules.rssm import RSSMState
+from simdist.objectives import TargetStandardiser
 from simdist.pipelines.control import EpisodeReplay, control_env, dreamer_keys
 from simdist.pipelines.locomotion import rollout
 from simdist.pipelines.resumable import stage_seed
@@ -149,23 +160,81 @@ def action_response(agent: DreamerAgent, task: str, seed: int, episodes: int, ho
     return out
 
 
-def fit_random(cfg, task: str, seed: int, episodes: int, updates: list[int], report) -> None:
-    """Trains a fresh pixel Dreamer's world model alone on ``episodes`` random-action
-    episodes and calls ``report(agent, n, losses)`` after each of ``updates`` updates."""
-    agent = DreamerAgent.for_pixels(recipe.state_dim(task)[1], cfg.pixel_dreamer())
+FIT_MODELS = ("dreamer", "state_recon", "state_recon_raw", "frame_cnn")
+
+
+def fit_model(cfg, task: str, model: str) -> DreamerAgent:
+    """A fresh agent for ``--fit-random --model``: the recipe's pixel Dreamer, its State
+    Recon. (state target standardised, as the recipe's, or ``_raw``), or for
+    ``frame_cnn`` the pixel Dreamer whose encoder alone will be trained."""
+    n_state, n_action = recipe.state_dim(task)
+    if model.startswith("state_recon"):
+        config = dataclasses.replace(cfg.pixel_dreamer(),
+                                     standardise_reconstruction=model == "state_recon")
+        return DreamerAgent.for_pixels_state_recon(n_action, n_state, config)
+    return DreamerAgent.for_pixels(n_action, cfg.pixel_dreamer())
+
+
+class FrameRegressor(torch.nn.Module):
+    """``frame_cnn``: the Dreamer's CNN and an MLP regress the standardised state from
+    one image, supervised: what one 64 px frame shows of the state, at the encoder's
+    capacity and learning rate, with no RSSM, KL or decoder in the way."""
+
+    def __init__(self, agent: DreamerAgent, n_state: int, lr: float):
+        super().__init__()
+        self.encoder = agent.world_model.encoder
+        width = self.encoder(torch.zeros(1, 64, 64, 3, dtype=torch.uint8)).shape[-1]
+        self.head = torch.nn.Sequential(torch.nn.Linear(width, 256), torch.nn.ELU(),
+                                        torch.nn.Linear(256, n_state))
+        self.standardise = TargetStandardiser(n_state)
+        self.optim = torch.optim.Adam(self.parameters(), lr=lr)
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        return self.head(self.encoder(pixels))
+
+    def update(self, batch) -> dict:
+        target = self.standardise(batch["next", "state"])
+        error = (self(batch["next", "pixels"]) - target).pow(2)
+        loss = error.mean()
+        self.optim.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optim.step()
+        return {"loss_frame": loss.detach(), **{f"mse_{i}": v for i, v in
+                                                 enumerate(error.detach().flatten(0, -2).mean(0))}}
+
+    @torch.no_grad()
+    def r2(self, episodes: list) -> list[float]:
+        """Held-out R^2 per state dimension of a linear read of the head's outputs."""
+        half = len(episodes) // 2
+        outputs = [self(e["pixels"]) for e in episodes]
+        states = [e["state"].float() for e in episodes]
+        return ridge_r2(torch.cat(outputs[:half]), torch.cat(states[:half]),
+                        torch.cat(outputs[half:]), torch.cat(states[half:]), ridge=1e-3)
+
+
+def fit_random(cfg, task: str, seed: int, episodes: int, updates: list[int], report,
+               model: str = "dreamer") -> None:
+    """Trains a fresh ``model`` (:data:`FIT_MODELS`) alone on ``episodes`` random-action
+    episodes and calls ``report(agent, n, losses, regressor)`` after each of ``updates``
+    updates (``regressor``: the :class:`FrameRegressor` of ``frame_cnn``, else None)."""
+    agent = fit_model(cfg, task, model)
+    regressor = (FrameRegressor(agent, recipe.state_dim(task)[0], cfg.pixel_dreamer().model_lr)
+                 if model == "frame_cnn" else None)
     env = control_env(task, seed, pixels=True, max_episode_steps=cfg.episode_steps,
                       camera_id=cfg.camera_id)
     replay = EpisodeReplay(episodes * cfg.episode_steps, cfg.slice_len, cfg.slices)
+    keys = dreamer_keys("pixels") if model == "dreamer" else dreamer_keys("pixels", "state")
     for i in tqdm(range(episodes), desc="random episodes"):
         env.set_seed(stage_seed(seed, f"fit_random/{i}"))
         with torch.no_grad():
             episode = rollout(env, None, cfg.episode_steps)
-        replay.add(episode.select(*dreamer_keys("pixels")).to_tensordict())
+        replay.add(episode.select(*keys).to_tensordict())
     env.close()
-    for n in tqdm(range(1, max(updates) + 1), desc="world-model updates"):
-        out = agent.update_world_model(replay.sample().to(agent.device))
+    for n in tqdm(range(1, max(updates) + 1), desc=f"{model} updates"):
+        batch = replay.sample().to(agent.device)
+        out = regressor.update(batch) if regressor else agent.update_world_model(batch)
         if n in updates:
-            report(agent, n, {k: round(v.item(), 4) for k, v in out.items()})
+            report(agent, n, {k: round(v.item(), 4) for k, v in out.items()}, regressor)
 
 
 def main(argv=None) -> None:
@@ -174,6 +243,10 @@ def main(argv=None) -> None:
     parser.add_argument("--fit-random", type=int, metavar="N",
                         help="no --agent: train a fresh pixel Dreamer's world model alone on N "
                              "random-action episodes and probe it after each of --updates")
+    parser.add_argument("--model", choices=FIT_MODELS, default="dreamer",
+                        help="--fit-random: what trains: the pixel Dreamer's world model, "
+                             "State Recon.'s (standardised state target, or raw), or the "
+                             "Dreamer's CNN supervised to regress the state from one frame")
     parser.add_argument("--updates", type=int, nargs="+", default=[250, 500, 1000],
                         help="--fit-random: world-model updates at which to probe")
     parser.add_argument("--encoder", choices=list(PixelEncoder.ARCHS),
@@ -202,6 +275,8 @@ def main(argv=None) -> None:
         parser.error("need --episodes >= 2, --steps >= 2 and --horizon >= 1")
     if (args.agent is None) == (args.fit_random is None):
         parser.error("give one of --agent and --fit-random")
+    if args.model != "dreamer" and args.fit_random is None:
+        parser.error("--model chooses what --fit-random trains")
     if args.fit_random is not None and (args.fit_random < 1 or min(args.updates) < 1
                                         or args.training or args.dr):
         parser.error("--fit-random needs N >= 1 and --updates >= 1, and trains on dm_control's "
@@ -230,16 +305,20 @@ def main(argv=None) -> None:
             Path(args.json).write_text(json.dumps(result, indent=1))
 
     if args.fit_random is not None:
-        result.update(fit_random=args.fit_random, encoder=cfg.pixel_encoder, fits=[])
-        result["r2_untrained"] = probe(
-            DreamerAgent.for_pixels(recipe.state_dim(args.task)[1], cfg.pixel_dreamer()),
-            episodes)
+        result.update(fit_random=args.fit_random, model=args.model, encoder=cfg.pixel_encoder,
+                      fits=[])
+        untrained = fit_model(cfg, args.task, args.model)
+        result["r2_untrained"] = (FrameRegressor(untrained, recipe.state_dim(args.task)[0],
+                                                 1e-3).r2(episodes)
+                                  if args.model == "frame_cnn" else probe(untrained, episodes))
 
-        def report(agent, updates, losses):
-            result["fits"].append({"updates": updates, "losses": losses, **measure(agent)})
+        def report(agent, updates, losses, regressor):
+            measured = {"r2_frame": regressor.r2(episodes)} if regressor else measure(agent)
+            result["fits"].append({"updates": updates, "losses": losses, **measured})
             write()
 
-        fit_random(cfg, args.task, args.seed, args.fit_random, sorted(set(args.updates)), report)
+        fit_random(cfg, args.task, args.seed, args.fit_random, sorted(set(args.updates)), report,
+                   model=args.model)
         return
     if args.training:
         agent = DreamerAgent.for_pixels(recipe.state_dim(args.task)[1], cfg.pixel_dreamer())

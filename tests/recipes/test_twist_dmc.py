@@ -1092,7 +1092,21 @@ def test_dreamer_latent_probe_fits_a_world_model_alone_on_random_data(tmp_path, 
     for fit in result["fits"]:
         assert len(fit["r2_trained"]) == 5 and set(fit["action_response"]) == {"-1", "+0", "+1"}
         assert {"loss_reconstruction", "loss_reward", "loss_kl"} <= set(fit["losses"])
+    # State Recon.'s world model (standardised target) and the CNN supervised on frames
+    for model in ("state_recon", "frame_cnn"):
+        proc = _benchmark("dreamer_latent_probe", "--fit-random", 2, "--updates", 2,
+                          "--preset", "tiny", "--model", model, "--episodes", 2, "--steps", 6,
+                          "--horizon", 3, "--json", out, capsys=capsys)
+        assert proc.returncode == 0, proc.stderr
+        result = json.loads(out.read_text())
+        assert result["model"] == model and [f["updates"] for f in result["fits"]] == [2]
+        fit = result["fits"][0]
+        if model == "frame_cnn":
+            assert len(fit["r2_frame"]) == len(result["r2_untrained"]) == 5
+            assert {"loss_frame", "mse_0", "mse_4"} <= set(fit["losses"])
+        else:
+            assert len(fit["r2_trained"]) == 5 and "loss_reconstruction" in fit["losses"]
     for bad in (("--fit-random", 2, "--agent", "x.pt"), (), ("--fit-random", 0),
-                ("--fit-random", 2, "--dr")):
+                ("--fit-random", 2, "--dr"), ("--agent", "x.pt", "--model", "frame_cnn")):
         proc = _benchmark("dreamer_latent_probe", *bad, capsys=capsys)
         assert proc.returncode == 2, bad
