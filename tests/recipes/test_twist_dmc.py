@@ -108,6 +108,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     assert (recon / "episodes" / "00000" / "next" / "state.memmap").exists()
     recon_agent = torch.load(recon / "dreamer_agent.pt", weights_only=True)
     assert recon_agent["config"]["reconstruct_key"] == "state"
+    assert recon_agent["config"]["agent"]["standardise_reconstruction"] is True
     # the Asymmetric SAC baseline trained (2 episodes x 20 / 10 updates) from stored steps
     assert run["Asymmetric SAC + DR"]["updates"] == 4
     # the blind references (zero and uniform random actions) ran on the Oracle's seeds
@@ -131,6 +132,11 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert refused.stderr.startswith("twist_dmc.py: error: ")
     assert "holds results of a different config (changed: ['eval_episodes'])" in refused.stderr
+    # a baseline's own setting bars a folder whose baselines ran (not one without them:
+    # tests/test_results_records.py)
+    refused = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--teacher-pixels",
+                        "always", "--no-state-recon-standardise", capsys=capsys)
+    assert "(changed: ['state_recon_standardise'])" in refused.stderr
 
     # the gap-diagnosis script runs on a finished recipe output
     # (the second probe: the perception options, re-rendered extra and held-out images)

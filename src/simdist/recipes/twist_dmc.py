@@ -932,13 +932,16 @@ def recording_stage(cfg: Config, task: str, seed: int, teacher: dict, out: Path)
 # -- the recipe -------------------------------------------------------------------------
 #: settings only the Asymmetric SAC baseline's stage reads
 SAC_FIELDS = ("sac_train_every", "sac_batch", "sac_frames", "sac_n_step", "sac_tau")
+#: settings only the baselines' stages read (the SAC's and Dreamer State Recon.'s)
+BASELINE_FIELDS = (*SAC_FIELDS, "state_recon_standardise")
 
 
 def stage_runner(cfg: Config) -> StageRunner:
     # tasks, seeds, students and baselines pick which chains run (rows of the table), not
     # what a chain computes: a later run with more of them into the same folder adds them.
-    # Without baselines no stage reads the SAC's settings, so they do not bar a folder.
-    ignored = () if cfg.baselines else SAC_FIELDS
+    # Without baselines no stage reads the baselines' own settings, so they do not bar a
+    # folder.
+    ignored = () if cfg.baselines else BASELINE_FIELDS
     return StageRunner(cfg.output_dir, cfg, runtime_keys=(
         "device", "jobs", "logger", "baselines", "students", "tasks", "seeds", *ignored))
 
