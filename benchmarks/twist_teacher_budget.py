@@ -16,6 +16,7 @@ Usage:
     python benchmarks/twist_teacher_budget.py --seeds 0 1 --steps 10000 --chunk 2000
     python benchmarks/twist_teacher_budget.py --task cheetah-run --seeds 0 --steps 6000
     python benchmarks/twist_teacher_budget.py --seeds 0 1 --return-normalisation percentile
+    python benchmarks/twist_teacher_budget.py --seeds 0 --steps 12000 --standardise
     python benchmarks/twist_teacher_budget.py --preset tiny --steps 40 --chunk 20  # the test
 """
 
@@ -36,9 +37,11 @@ from simdist.recipes import twist_dmc as recipe
 
 
 def variant(cfg: recipe.Config) -> str:
-    """What the run's folder and result file add to the task's name: the return scaling,
-    when not the default."""
-    return "" if cfg.return_normalisation == "none" else f"_return_{cfg.return_normalisation}"
+    """What the run's folder and result file add to the task's name: the return scaling
+    and the standardised state target, when not the default."""
+    return ("" if cfg.return_normalisation == "none" else
+            f"_return_{cfg.return_normalisation}") + ("_standardised" if cfg.teacher_standardise
+                                                     else "")
 
 
 def teacher_curve(cfg: recipe.Config, task: str, seed: int, steps: int, chunk: int,
@@ -83,6 +86,9 @@ def main(argv=None) -> None:
     parser.add_argument("--return-normalisation", choices=RETURN_NORMALISATIONS,
                         help="the actor's returns as they come or divided by their running "
                              "percentile range, DreamerV3's (default: the preset's)")
+    parser.add_argument("--standardise", action="store_true",
+                        help="the teacher reconstructs its state standardised per dimension "
+                             "(the recipe's teacher_standardise)")
     args = parser.parse_args(argv)
     if args.chunk < 1 or args.steps < args.chunk:
         parser.error("need 1 <= --chunk <= --steps")
@@ -92,6 +98,7 @@ def main(argv=None) -> None:
                            "seeds": args.seeds, "teacher_snapshots": 0})
     if args.return_normalisation is not None:
         cfg = dataclasses.replace(cfg, return_normalisation=args.return_normalisation)
+    cfg = dataclasses.replace(cfg, teacher_standardise=args.standardise)
     out = Path(args.out)
     results = {"references": {}, "curves": {}}
     for seed in args.seeds:

@@ -503,6 +503,13 @@ def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path, capsys):
     state = torch.load(out / "cartpole-balance_s0_return_percentile" / "agent.pt",
                        weights_only=True)["agent"]  # the online run's training checkpoint
     assert int(state["return_scale"]["count"]) > 0
+    # a teacher whose state target is standardised: its own folder, and the statistics
+    run = _benchmark("twist_teacher_budget", "--preset", "tiny", "--steps", "20", "--chunk",
+                     "20", "--out", out, "--standardise", capsys=capsys)
+    assert run.returncode == 0, run.stderr
+    state = torch.load(out / "cartpole-balance_s0_standardised" / "agent.pt",
+                       weights_only=True)["agent"]
+    assert int(state["reconstruction_standardiser"]["count"]) > 0
 
 
 def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_path, capsys):

@@ -253,6 +253,9 @@ class Config:
     # ~90% of the reconstruction loss (benchmarks/README.md, "A standardised state target
     # for Dreamer State Recon."; folders made before the field reconstructed the raw state)
     state_recon_standardise: bool = field(default=True, metadata={ABSENT_MEANS: False})
+    # the state teacher's reconstruction target standardised the same way (off: every
+    # teacher so far reconstructed the raw state)
+    teacher_standardise: bool = False
     # the Dreamers' actor returns (teacher and pixel Dreamers; DreamerConfig.
     # return_normalisation): "none" (DreamerV2) or "percentile", divided by their running
     # 95th-5th percentile range (DreamerV3), so the entropy bonus is not swamped
@@ -459,7 +462,8 @@ def saved_meta(cfg: Config, task: str, seed: int) -> dict:
 
 
 def teacher_agent(cfg: Config, task: str) -> DreamerAgent:
-    config = dataclasses.replace(cfg.dreamer(), actor_input_noise=cfg.teacher_actor_noise)
+    config = dataclasses.replace(cfg.dreamer(), actor_input_noise=cfg.teacher_actor_noise,
+                                 standardise_reconstruction=cfg.teacher_standardise)
     return DreamerAgent.for_state(*state_dim(task), config).to(cfg.device)
 
 
