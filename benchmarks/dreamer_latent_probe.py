@@ -29,7 +29,15 @@ Dreamer's world model (default), Dreamer State Recon.'s (its decoder reconstruct
 state, standardised per dimension as in the recipe, or raw with ``state_recon_raw``), or
 ``frame_cnn``: the same CNN with an MLP head, supervised to regress the standardised state
 from one image (no RSSM; its ``r2_frame`` is a linear read of the head's outputs), which
-says what a single 64 px frame shows at this encoder's capacity.
+says what a single 64 px frame shows at this encoder's capacity, or ``state``: the state
+Dreamer's (the TWIST teacher's world model, which reads the state itself: a control).
+
+With ``--actor-updates`` the fitted world model is then frozen and only the actor and
+critic train, in imagination from the posterior states of the same random episodes
+(``DreamerAgent.update_behaviour``), evaluated on the task's own scene after each count:
+can an actor learn to act from this model at all, with no online loop, no exploration and
+no model drifting under it? The ``state`` model says what such an actor reaches when the
+latent is read from the state.
 
 Usage:
     python benchmarks/dreamer_latent_probe.py --agent RUN/.../dreamer_agent.pt
@@ -42,6 +50,8 @@ Usage:
         --model state_recon                       # State Recon.'s (state_recon_raw: raw target)
     python benchmarks/dreamer_latent_probe.py --fit-random 10 --updates 500 1000 \
         --model frame_cnn                         # the CNN supervised on one frame
+    python benchmarks/dreamer_latent_probe.py --fit-random 10 --updates 1500 \
+        --model state_recon --actor-updates 500 1000 2000   # then an actor on the frozen model
 """
 
 from __future__ import annotations
@@ -60,7 +70,7 @@ from simdist.envs import VisualRandomisation
 from simdist.modules.encoders import PixelEncoder
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import TargetStandardiser
-from simdist.pipelines.control import EpisodeReplay, control_env, dreamer_keys
+from simdist.pipelines.control import EpisodeReplay, control_env, dreamer_keys, evaluate_returns
 from simdist.pipelines.locomotion import rollout
 from simdist.pipelines.resumable import stage_seed
 from simdist.recipes import twist_dmc as recipe
@@ -85,12 +95,12 @@ def features(agent: DreamerAgent, episode) -> torch.Tensor:
     """``[T, feature]`` posterior features: the RSSM filters the episode from its start,
     each step conditioned on the action that led to its image (zero at the first)."""
     wm = agent.world_model
-    pixels = episode["pixels"][None]
+    obs = episode[agent.obs_key][None]  # the image, or the state for a state Dreamer
     action = episode["action"][None].float()
     prev_action = torch.cat([torch.zeros_like(action[:, :1]), action[:, :-1]], 1)
-    is_first = torch.zeros(pixels.shape[:2], dtype=torch.bool)
+    is_first = torch.zeros(action.shape[:2], dtype=torch.bool)
     is_first[:, 0] = True
-    post = wm.rssm.observe(wm.encoder(pixels), prev_action, is_first)
+    post = wm.rssm.observe(wm.encoder(obs), prev_action, is_first)
     return torch.cat([post["belief"], post["stoch"]], -1)[0]
 
 
@@ -147,7 +157,7 @@ def action_response(agent: DreamerAgent, task: str, seed: int, episodes: int, ho
             td = env.rollout(horizon, actions=[held] * horizon, break_when_any_done=False)
             true.append(float(td["next", "reward"].sum()))
             with torch.no_grad():
-                first = td["pixels"][None, :1]
+                first = td[agent.obs_key][None, :1]
                 post = wm.rssm.observe(wm.encoder(first),
                                        torch.zeros(1, 1, *env.action_spec.shape),
                                        torch.ones(1, 1, dtype=torch.bool))
@@ -160,14 +170,17 @@ def action_response(agent: DreamerAgent, task: str, seed: int, episodes: int, ho
     return out
 
 
-FIT_MODELS = ("dreamer", "state_recon", "state_recon_raw", "frame_cnn")
+FIT_MODELS = ("dreamer", "state_recon", "state_recon_raw", "frame_cnn", "state")
 
 
 def fit_model(cfg, task: str, model: str) -> DreamerAgent:
     """A fresh agent for ``--fit-random --model``: the recipe's pixel Dreamer, its State
     Recon. (state target standardised, as the recipe's, or ``_raw``), or for
-    ``frame_cnn`` the pixel Dreamer whose encoder alone will be trained."""
+    ``frame_cnn`` the pixel Dreamer whose encoder alone will be trained, or for
+    ``state`` the recipe's state Dreamer (the teacher's)."""
     n_state, n_action = recipe.state_dim(task)
+    if model == "state":
+        return DreamerAgent.for_state(n_state, n_action, cfg.dreamer())
     if model.startswith("state_recon"):
         config = dataclasses.replace(cfg.pixel_dreamer(),
                                      standardise_reconstruction=model == "state_recon")
@@ -213,17 +226,19 @@ class FrameRegressor(torch.nn.Module):
 
 
 def fit_random(cfg, task: str, seed: int, episodes: int, updates: list[int], report,
-               model: str = "dreamer") -> None:
+               model: str = "dreamer") -> tuple[DreamerAgent, EpisodeReplay]:
     """Trains a fresh ``model`` (:data:`FIT_MODELS`) alone on ``episodes`` random-action
     episodes and calls ``report(agent, n, losses, regressor)`` after each of ``updates``
-    updates (``regressor``: the :class:`FrameRegressor` of ``frame_cnn``, else None)."""
+    updates (``regressor``: the :class:`FrameRegressor` of ``frame_cnn``, else None).
+    Returns the agent and the replay of the random episodes."""
     agent = fit_model(cfg, task, model)
     regressor = (FrameRegressor(agent, recipe.state_dim(task)[0], cfg.pixel_dreamer().model_lr)
                  if model == "frame_cnn" else None)
     env = control_env(task, seed, pixels=True, max_episode_steps=cfg.episode_steps,
                       camera_id=cfg.camera_id)
     replay = EpisodeReplay(episodes * cfg.episode_steps, cfg.slice_len, cfg.slices)
-    keys = dreamer_keys("pixels") if model == "dreamer" else dreamer_keys("pixels", "state")
+    keys = {"dreamer": dreamer_keys("pixels"),
+            "state": dreamer_keys("state")}.get(model, dreamer_keys("pixels", "state"))
     for i in tqdm(range(episodes), desc="random episodes"):
         env.set_seed(stage_seed(seed, f"fit_random/{i}"))
         with torch.no_grad():
@@ -235,6 +250,28 @@ def fit_random(cfg, task: str, seed: int, episodes: int, updates: list[int], rep
         out = regressor.update(batch) if regressor else agent.update_world_model(batch)
         if n in updates:
             report(agent, n, {k: round(v.item(), 4) for k, v in out.items()}, regressor)
+    return agent, replay
+
+
+def train_actor(cfg, agent: DreamerAgent, replay: EpisodeReplay, task: str, seed: int,
+                updates: list[int], eval_episodes: int, report) -> None:
+    """Trains ``agent``'s actor and critic alone, in imagination from the posterior states
+    of ``replay``'s slices, on its world model frozen as it is; after each of ``updates``
+    evaluates the deterministic policy on the task's own scene (``eval_episodes``
+    episodes of the preset's length, seeds ``seed + 10_000 ..``) and calls
+    ``report(n, losses, evaluation)``."""
+    for n in tqdm(range(1, max(updates) + 1), desc="actor-critic updates"):
+        batch = replay.sample().to(agent.device)
+        with torch.no_grad():
+            agent.model_loss(batch)  # writes the posteriors; no step on the model
+        out = agent.update_behaviour(batch)
+        if n in updates:
+            stats = evaluate_returns(task, agent.policy(explore=False), agent.make_primer(),
+                                     seed + 10_000, eval_episodes, cfg.eval_steps,
+                                     pixels=agent.obs_key == "pixels", visual=None,
+                                     camera_id=cfg.camera_id)
+            report(n, {k: round(v.item(), 4) for k, v in out.items()},
+                   {k: stats[k] for k in ("mean", "std", "returns")})
 
 
 def main(argv=None) -> None:
@@ -249,6 +286,11 @@ def main(argv=None) -> None:
                              "Dreamer's CNN supervised to regress the state from one frame")
     parser.add_argument("--updates", type=int, nargs="+", default=[250, 500, 1000],
                         help="--fit-random: world-model updates at which to probe")
+    parser.add_argument("--actor-updates", type=int, nargs="+",
+                        help="--fit-random: then freeze the world model and train the actor "
+                             "and critic alone, evaluating on the own scene after each count")
+    parser.add_argument("--eval-episodes", type=int,
+                        help="--actor-updates: evaluation episodes (default: the preset's)")
     parser.add_argument("--encoder", choices=list(PixelEncoder.ARCHS),
                         help="--training / --fit-random: the Dreamer's image encoder "
                              "(default: the preset's)")
@@ -277,6 +319,10 @@ def main(argv=None) -> None:
         parser.error("give one of --agent and --fit-random")
     if args.model != "dreamer" and args.fit_random is None:
         parser.error("--model chooses what --fit-random trains")
+    if args.actor_updates and (args.fit_random is None or args.model == "frame_cnn"
+                               or min(args.actor_updates) < 1):
+        parser.error("--actor-updates (>= 1) trains an actor on a --fit-random world model "
+                     "(not frame_cnn, which has none)")
     if args.fit_random is not None and (args.fit_random < 1 or min(args.updates) < 1
                                         or args.training or args.dr):
         parser.error("--fit-random needs N >= 1 and --updates >= 1, and trains on dm_control's "
@@ -317,8 +363,18 @@ def main(argv=None) -> None:
             result["fits"].append({"updates": updates, "losses": losses, **measured})
             write()
 
-        fit_random(cfg, args.task, args.seed, args.fit_random, sorted(set(args.updates)), report,
-                   model=args.model)
+        agent, replay = fit_random(cfg, args.task, args.seed, args.fit_random,
+                                   sorted(set(args.updates)), report, model=args.model)
+        if args.actor_updates:
+            result["actor"] = []
+
+            def report_actor(updates, losses, evaluation):
+                result["actor"].append({"updates": updates, "losses": losses,
+                                        "own_scene": evaluation})
+                write()
+
+            train_actor(cfg, agent, replay, args.task, args.seed, sorted(set(args.actor_updates)),
+                        args.eval_episodes or cfg.eval_episodes, report_actor)
         return
     if args.training:
         agent = DreamerAgent.for_pixels(recipe.state_dim(args.task)[1], cfg.pixel_dreamer())

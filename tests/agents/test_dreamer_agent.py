@@ -55,6 +55,28 @@ def test_updates_learn_the_world_model_and_keep_terms_finite():
     assert all(torch.isfinite(torch.tensor(v)) for v in last.values())
 
 
+def test_behaviour_updates_on_a_frozen_world_model_leave_it_unchanged():
+    """update_behaviour: actor and critic learn from the posteriors the model loss wrote,
+    the world model's weights stay bit for bit; a batch without posteriors is refused."""
+    agent = _agent(state_dim=4, action_dim=2)
+    batch = linear_system_batch(batch=8, time=6, obs_dim=4)
+    with pytest.raises(KeyError, match="no \\('posterior', 'belief'\\)"):
+        agent.update_behaviour(batch.clone())
+    model = {k: v.clone() for k, v in agent.world_model.state_dict().items()}
+    actor = [p.clone() for p in agent.actor.parameters()]
+    critic = [p.clone() for p in agent.critic.parameters()]
+    for _ in range(3):
+        td = batch.clone()
+        with torch.no_grad():
+            agent.model_loss(td)
+        out = agent.update_behaviour(td)
+        assert torch.isfinite(out["loss_actor"]) and torch.isfinite(out["loss_critic"])
+    assert all(torch.equal(v, agent.world_model.state_dict()[k]) for k, v in model.items())
+    assert all(p.grad is None for p in agent.world_model.parameters())
+    assert any(not torch.equal(a, b) for a, b in zip(actor, agent.actor.parameters()))
+    assert any(not torch.equal(a, b) for a, b in zip(critic, agent.critic.parameters()))
+
+
 def test_dreamer_v2_actor_explores_by_sampling_inside_the_box_and_learns():
     """DreamerConfig(actor_distribution="trunc_normal", exploration="sample"): collection
     draws from the actor (no added noise), evaluation takes its mode, and updates run."""

@@ -1119,7 +1119,21 @@ def test_dreamer_latent_probe_fits_a_world_model_alone_on_random_data(tmp_path, 
             assert {"loss_frame", "mse_0", "mse_4"} <= set(fit["losses"])
         else:
             assert len(fit["r2_trained"]) == 5 and "loss_reconstruction" in fit["losses"]
+    # --actor-updates: the state Dreamer's model (the control), then an actor on it frozen
+    proc = _benchmark("dreamer_latent_probe", "--fit-random", 2, "--updates", 2, "--preset",
+                      "tiny", "--model", "state", "--episodes", 2, "--steps", 6, "--horizon", 3,
+                      "--actor-updates", 2, 1, "--eval-episodes", 2, "--json", out, capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(out.read_text())
+    assert result["model"] == "state" and len(result["fits"][0]["r2_trained"]) == 5
+    assert [a["updates"] for a in result["actor"]] == [1, 2]
+    for actor in result["actor"]:
+        assert {"loss_actor", "loss_critic"} <= set(actor["losses"])
+        assert len(actor["own_scene"]["returns"]) == 2
     for bad in (("--fit-random", 2, "--agent", "x.pt"), (), ("--fit-random", 0),
-                ("--fit-random", 2, "--dr"), ("--agent", "x.pt", "--model", "frame_cnn")):
+                ("--fit-random", 2, "--dr"), ("--agent", "x.pt", "--model", "frame_cnn"),
+                ("--agent", "x.pt", "--actor-updates", 2),
+                ("--fit-random", 2, "--model", "frame_cnn", "--actor-updates", 2),
+                ("--fit-random", 2, "--actor-updates", 0)):
         proc = _benchmark("dreamer_latent_probe", *bad, capsys=capsys)
         assert proc.returncode == 2, bad

@@ -389,14 +389,25 @@ class DreamerAgent(ckpt_format.LoadableAgent):
         self._step(model_total, self.model_optim, list(self.world_model.parameters()))
         return model_out
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        """One world-model step, then one actor and one critic step; returns the terms."""
-        batch = batch.to(self.device)
-        model_out = self.update_world_model(batch)
+    def update_behaviour(self, batch: TensorDictBase) -> TensorDictBase:
+        """One actor and one critic step in imagination from the posterior states of
+        ``batch`` (``("posterior", "belief" / "stoch")``, written by
+        :meth:`update_world_model` or, for a frozen world model, by ``self.model_loss``
+        under ``torch.no_grad()``); the world model is not changed. Returns the terms."""
+        if ("posterior", "belief") not in batch.keys(True):
+            raise KeyError("update_behaviour: the batch has no ('posterior', 'belief'); run "
+                           "update_world_model(batch) or self.model_loss(batch) first")
         behaviour = self.behaviour_loss(batch)
         self._step(behaviour["loss_actor"], self.actor_optim, list(self.actor.parameters()))
         self._step(behaviour["loss_critic"], self.critic_optim, list(self.critic.parameters()))
         self.behaviour_loss.update_target()
+        return behaviour
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One world-model step, then one actor and one critic step; returns the terms."""
+        batch = batch.to(self.device)
+        model_out = self.update_world_model(batch)
+        behaviour = self.update_behaviour(batch)
         return {k: v.item() for k, v in (*model_out.items(), *behaviour.items())}
 
 
