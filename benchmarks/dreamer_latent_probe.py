@@ -323,6 +323,8 @@ def main(argv=None) -> None:
                                or min(args.actor_updates) < 1):
         parser.error("--actor-updates (>= 1) trains an actor on a --fit-random world model "
                      "(not frame_cnn, which has none)")
+    if args.eval_episodes is not None and (args.eval_episodes < 1 or not args.actor_updates):
+        parser.error("--eval-episodes (>= 1) evaluates the actor of --actor-updates")
     if args.fit_random is not None and (args.fit_random < 1 or min(args.updates) < 1
                                         or args.training or args.dr):
         parser.error("--fit-random needs N >= 1 and --updates >= 1, and trains on dm_control's "

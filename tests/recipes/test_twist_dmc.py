@@ -1134,6 +1134,8 @@ def test_dreamer_latent_probe_fits_a_world_model_alone_on_random_data(tmp_path, 
                 ("--fit-random", 2, "--dr"), ("--agent", "x.pt", "--model", "frame_cnn"),
                 ("--agent", "x.pt", "--actor-updates", 2),
                 ("--fit-random", 2, "--model", "frame_cnn", "--actor-updates", 2),
-                ("--fit-random", 2, "--actor-updates", 0)):
+                ("--fit-random", 2, "--actor-updates", 0),
+                ("--fit-random", 2, "--actor-updates", 2, "--eval-episodes", 0),
+                ("--fit-random", 2, "--eval-episodes", 2)):
         proc = _benchmark("dreamer_latent_probe", *bad, capsys=capsys)
         assert proc.returncode == 2, bad
