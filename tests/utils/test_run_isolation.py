@@ -107,7 +107,9 @@ def test_a_killed_worker_fails_the_run_naming_the_unfinished_call(helpers):
 
 
 def test_workers_are_kept_for_the_next_call_and_replaced_after_one_dies(tmp_path, helpers):
-    calls = [(helpers.pid_after, (0.5,))] * 2  # both busy at once: one call per worker
+    # both busy at once: one call per worker (2 s: a worker spawned late under load must
+    # still find the other busy, else one worker takes both calls)
+    calls = [(helpers.pid_after, (2.0,))] * 2
     first = set(run_jobs(calls, jobs=2, threads=1))
     assert len(first) == 2 and os.getpid() not in first
     assert set(run_jobs(calls, jobs=2, threads=1)) == first  # no new processes
