@@ -85,6 +85,33 @@ def test_simulator_planner_keeps_the_window_of_an_encoder_that_reads_previous_ac
                           [2]))
 
 
+def test_simulator_planner_scores_by_a_lambda_return_over_the_plans_values():
+    """The recipe's default planner reads the value at every 2nd predicted step (a
+    [steps, candidates, latent] batch); the simulator planner must take it as the learned
+    one does, and its scores must depend on those values (lambda < 1)."""
+    from torchrl.envs import InitTracker, TransformedEnv
+
+    from simdist.agents import SimDistAgent
+    from simdist.modules import PlannerConfig, SimDistWorldModel
+    from simdist.pipelines.simulator_dynamics import SimulatorPlanningPolicy
+
+    def plan(value_lambda):
+        torch.manual_seed(0)
+        agent = SimDistAgent(SimDistWorldModel.build(89, 12, size="tiny", history=2))
+        env = TransformedEnv(make_env("quadruped-flat", num_envs=2, seed=0), InitTracker())
+        env = env.append_transform(agent.make_primer(0))
+        config = PlannerConfig(horizon=4, num_samples=4, num_elites=2, iterations=1,
+                               value_lambda=value_lambda, value_every=2)
+        policy = SimulatorPlanningPolicy(agent, env.base_env.sims, config, -torch.ones(12),
+                                         torch.ones(12), seed=0)
+        return env.rollout(2, policy)
+
+    mixed, terminal = plan(0.95), plan(1.0)
+    assert mixed["action"].shape == (2, 2, 12)
+    assert torch.isfinite(mixed["planner", "rewards"]).all()
+    assert not torch.equal(mixed["action"], terminal["action"])
+
+
 def test_a_copy_keeps_the_worlds_task_options():
     # a world built with its own incline: a copy built from the speeds alone would be flat
     env = make_env("quadruped-flat", num_envs=1, seed=5, task_kwargs={"slope_deg": 7.0})

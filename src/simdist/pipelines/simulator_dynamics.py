@@ -162,7 +162,10 @@ class SimulatorPlanningPolicy(nn.Module):
         self.dynamics = SimulatorDynamics(worlds, enc.history, enc.obs_dim, enc.action_dim)
 
         def encoded(z):
-            return model.encode(self.dynamics.history_of(z)).reshape(len(z), -1)
+            # Any leading shape: the lambda-return reads the values of several predicted
+            # steps at once ([steps, candidates, latent]).
+            flat = self.dynamics.history_of(z.reshape(-1, z.shape[-1]))
+            return model.encode(flat).reshape(*z.shape[:-1], -1)
 
         # The heads run in float32; the simulator state rides in float64.
         self.planner = LatentMPPIPlanner(
