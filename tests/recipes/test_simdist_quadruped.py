@@ -189,6 +189,24 @@ def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert, caps
     assert recorded.stdout.count("already done") == 7  # every stage but probe, recordings
     assert (tmp_path / "stages" / "probe.json").exists()
     assert (tmp_path / "rerun_after.rrd").stat().st_size > 0
+    assert (tmp_path / "planner_after_finetuning.mp4").stat().st_size > 0
+
+
+def test_without_an_mp4_encoder_the_recipe_warns_first_and_still_finishes(
+        tmp_path, tiny_expert, capsys, monkeypatch):
+    """A user whose install lacks imageio-ffmpeg (e.g. installed with --no-deps) gets the
+    tables and the rerun recordings, and hears about the missing videos before any work."""
+    from simdist.recipes import simdist_quadruped
+    monkeypatch.setattr(simdist_quadruped, "video_backend_available", lambda: False)
+    with pytest.warns(UserWarning, match="without MP4 videos: writing MP4 videos needs"):
+        proc = _run_here("--preset", "tiny", "--expert", tiny_expert, "--threads", 1,
+                         "--output-dir", tmp_path, capsys=capsys)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.index("Training randomisation") < proc.stdout.index("stage")
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert set(results["recordings"]) == {"before", "after"}
+    assert (tmp_path / "rerun_after.rrd").stat().st_size > 0
+    assert not list(tmp_path.glob("*.mp4"))
 
 
 def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path, capsys):

@@ -344,6 +344,7 @@ class AsymmetricSACPolicy(TensorDictModuleBase):
     @torch.no_grad()
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         mode = ExplorationType.RANDOM if self.explore else ExplorationType.DETERMINISTIC
+        check_finite("pixels", td.get("pixels"))  # a NaN would become a NaN action, silently
         actor_in = td if self.frames == 1 else self._stack(td)
         # images go to the actor's device and the action comes back to the env's
         home, device = td.get("pixels").device, module_device(self.loss)

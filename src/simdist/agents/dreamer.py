@@ -26,6 +26,7 @@ from simdist.agents.describe import build_dreamer_model, describe_dreamer_model
 from simdist.modules import Actor, DreamerWorldModel, ScalarHead
 from simdist.modules.heads import StateDecoder
 from simdist.modules.encoders import PixelEncoder
+from simdist.modules.checks import check_finite
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss, ReturnScale
 from simdist.objectives.dreamer import ACTOR_GRADIENTS
@@ -146,6 +147,7 @@ class DreamerPolicy(TensorDictModuleBase):
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         rssm = self.world_model.rssm
         obs = td.get(self.obs_key)
+        check_finite(self.obs_key, obs)  # a NaN would become a NaN action, silently
         # Inputs go to the model's device and outputs come back to the env's, so a model
         # on a GPU acts in a CPU env (the recurrent state rides in the env's TensorDict).
         home, device = obs.device, module_device(self.world_model)

@@ -25,6 +25,7 @@ from simdist.agents import checkpoint as ckpt_format
 from simdist.agents.action_spec import action_bounds
 from simdist.agents.describe import build_simdist_model, describe_simdist_model
 from simdist.modules import SimDistWorldModel, WorldModelEnsemble
+from simdist.modules.checks import check_finite
 from simdist.modules.planner import LatentMPPIPlanner, PlannerConfig
 from simdist.objectives import DynamicsFinetuneLoss, SimDistPretrainLoss
 from simdist.utils.device import module_device, move_to_device
@@ -193,9 +194,12 @@ class SimDistPolicy(TensorDictModuleBase):
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         enc = self.world_model.encoder
         obs = td.get(self.obs_key)
+        check_finite(self.obs_key, obs)  # named here, not as a non-finite latent later
         # Inputs to the model's device, outputs back to the env's (a GPU model, CPU env).
         home, device = obs.device, module_device(self.world_model)
         obs = obs.to(device)
+        # an unbatched env (make_env's default) gives batch == (): reshapes take tuples,
+        # which may be empty, not unpacked arguments
         batch = obs.shape[:-1]
         is_init = td.get("is_init", None)
         if is_init is None:
@@ -219,7 +223,7 @@ class SimDistPolicy(TensorDictModuleBase):
         plan = self.planner(inputs)
         if self.latency_compensation:
             sent = torch.cat([pending[:, 1:], plan["action"][:, None]], 1)
-            td.set(("next", *PENDING), sent.reshape(*batch, *sent.shape[1:]).to(home))
+            td.set(("next", *PENDING), sent.reshape(batch + sent.shape[1:]).to(home))
         td.set("action", plan["action"].reshape(*batch, -1).to(home))
         if enc.action_dim:
             td.set(("next", *PREVIOUS_ACTION), td.get("action").clone())
@@ -227,7 +231,7 @@ class SimDistPolicy(TensorDictModuleBase):
         td.set(("planner", "latent"), latent.reshape(*batch, -1).to(home))
         for key in ("mean", "rewards", "value"):
             value = plan["planner", key]
-            td.set(("planner", key), value.reshape(*batch, *value.shape[1:]).to(home))
+            td.set(("planner", key), value.reshape(batch + value.shape[1:]).to(home))
         return td
 
 

@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from simdist.envs import DynamicsRandomisation, get_target, make_env
 from simdist.experts.networks import make_actor, make_critic
+from simdist.modules.checks import check_finite
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.checkpoint import CorruptCheckpointError, load_checkpoint, save_atomic
 
@@ -121,6 +122,7 @@ class Expert:
         low, high, net = self._low, self._high, self._net
 
         def act(observation):
+            check_finite("observation", observation)  # else a NaN action, silently
             loc, _ = net(observation)
             return low + (high - low) * (torch.tanh(loc) + 1) / 2
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,6 +66,7 @@ from simdist.utils.machine import describe_machine, machine_line
 from simdist.utils.precision import PRECISIONS, resolve_precision
 from simdist.utils.stages import ABSENT_MEANS, field_defaults, read_json
 from simdist.viz import record_planning_episode
+from simdist.viz.video import INSTALL_HINT, video_backend_available
 
 DEFAULT_EXPERT = "checkpoints/quadruped_expert/expert.pt"
 STEPS_PER_MINUTE = 50 * 60  # 50 Hz control
@@ -1163,13 +1165,14 @@ def recording_job(cfg: Config, pretrained: dict, probe: dict, weights: list[str]
                          primers=[agent.make_primer(cfg.planner().latency_compensation)])
     spec = env.action_spec
     policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
-    # the same episode also as a video, for readers without a rerun viewer
-    video = out / f"planner_{label}_finetuning.mp4"
+    # the same episode also as a video, for readers without a rerun viewer (when an MP4
+    # encoder is installed: run() warned before any work otherwise)
+    video = out / f"planner_{label}_finetuning.mp4" if video_backend_available() else None
     path = record_planning_episode(env, policy, probe_net, str(out / f"rerun_{label}.rrd"),
                                    cfg.episode_steps, application_id=f"simdist_{label}_finetuning",
                                    video_path=video)
     env.close()
-    return {label: path, f"video_{label}": str(video)}
+    return {label: path, **({f"video_{label}": str(video)} if video else {})}
 
 
 # -- the recipe -------------------------------------------------------------------------
@@ -1191,6 +1194,9 @@ def run(cfg: Config) -> dict:
     machine = describe_machine()  # timings in results.json mean little without it
     print("machine: " + machine_line(machine))
     print("Training randomisation vs target domains:\n" + describe_ranges() + "\n")
+    if cfg.record and not video_backend_available():  # say so now, not after the training
+        warnings.warn(f"the recordings stage will write rerun files without MP4 videos: "
+                      f"{INSTALL_HINT}", stacklevel=2)
 
     def stage(name, fn):
         if runner.done(name):

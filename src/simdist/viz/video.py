@@ -2,8 +2,8 @@
 
 TorchRL's ``VideoRecorder`` + ``CSVLogger(video_format="mp4")`` encodes with torchcodec,
 which needs the system's FFmpeg shared libraries (absent on our CPU machines and CI, and
-not installable from PyPI). We encode with ``imageio-ffmpeg`` instead (the ``video``
-extra): its wheel ships an ``ffmpeg`` executable, so ``pip install`` is the whole set-up.
+not installable from PyPI). We encode with ``imageio-ffmpeg`` instead (a core
+dependency): its wheel ships an ``ffmpeg`` executable, so ``pip install`` is the whole set-up.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ import torch
 from simdist.utils.atomic import atomic_path
 
 INSTALL_HINT = ("writing MP4 videos needs imageio-ffmpeg (it ships an ffmpeg binary): "
-                "pip install 'imageio-ffmpeg>=0.5' (the 'video' extra of simdist-rl)")
+                "pip install 'imageio-ffmpeg>=0.5' (a dependency of simdist-rl that this "
+                "environment lacks)")
 
 
 def video_backend_available() -> bool:
