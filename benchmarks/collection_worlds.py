@@ -34,7 +34,7 @@ import torch
 def collect_seconds(run: str, worlds: int, episodes: int, search: str | None = None) -> float:
     """Seconds to collect ``episodes`` target episodes ``worlds`` at a time (this process),
     with the run's collection planner or ``search`` (``SAMPLESxITERATIONSxELITES``)."""
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     cfg, pretrained = recipe.load_finished_run(run)
     cfg = dataclasses.replace(cfg, collect_episodes=worlds)
     if search:

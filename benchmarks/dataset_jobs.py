@@ -43,11 +43,12 @@ def main():
     parser.add_argument("--shards", type=int, default=12, help="32-episode shards")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes")
     args = parser.parse_args()
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.experts import resolve_expert
+    from simdist.pipelines import simdist as recipe
     cfg = recipe.Config()
     data_cfg = dataclasses.replace(recipe.dataset_config(cfg),
                                    episodes=args.shards * cfg.dataset_shard_episodes)
-    experts = recipe.load_experts(str(recipe.resolve_expert(cfg.expert)))
+    experts = recipe.load_experts(str(resolve_expert(cfg.expert)))
     start = time.perf_counter()
     list(iter_jobs([(_nothing, ())] * args.jobs, args.jobs, threads=1))
     startup = time.perf_counter() - start

@@ -29,7 +29,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from simdist_pretrain_precision import make_batch  # noqa: E402
 
-from simdist.recipes.simdist_quadruped import Config, new_agent  # noqa: E402
+from simdist.pipelines.simdist import Config, new_agent  # noqa: E402
 from simdist.utils import run_jobs  # noqa: E402
 
 

@@ -107,7 +107,7 @@ def main():
     # "recipe H20": the planner of recipes/simdist_quadruped.py's default preset (90% of the
     # samples proposed by the policy prior, scored once per step; TorchRL's planner has no
     # prior, so it samples all 64 at random at the same H x N x iterations); "recipe": the
-    # same at the recipe's earlier horizon 10 (the figures in benchmarks/README.md before
+    # same at the recipe's earlier horizon 10 (the figures in docs/findings.md before
     # 2026-11-27).
     recipe = PlannerConfig(horizon=10, num_samples=64, iterations=3, num_elites=8,
                            policy_fraction=0.9, policy_noise=0.3)

@@ -23,7 +23,7 @@ import time
 import torch
 from torch.profiler import ProfilerActivity, profile
 
-from simdist.recipes.simdist_quadruped import Config, new_agent
+from simdist.pipelines.simdist import Config, new_agent
 from simdist.utils.machine import matmul_gflops
 from simdist.utils.precision import resolve_precision
 from simdist_pretrain_precision import make_batch

@@ -65,7 +65,7 @@ def main():
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     cfg, pretrained = recipe.load_finished_run(args.run)
     path = read_json(f"{args.run}/stages/dataset.json")["result"]["path"]
     batch = cfg.slice_len * cfg.batch_slices

@@ -29,7 +29,7 @@ from planner_latency import latency_ms  # benchmarks/ (the script's folder is on
 from simdist_pretrain_precision import make_batch
 
 from simdist.modules import encoders
-from simdist.recipes.simdist_quadruped import Config, new_agent
+from simdist.pipelines.simdist import Config, new_agent
 
 
 def direct(z: torch.Tensor) -> torch.Tensor:

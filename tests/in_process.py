@@ -50,11 +50,20 @@ def run_script(path: Path, *args, capsys) -> Finished:
     return Finished(code, out, err)
 
 
-def benchmark_module(name: str):
-    """``benchmarks/<name>.py`` imported as a module (the scripts are not a package)."""
-    import importlib.util
+def script_path(name: str) -> Path:
+    """``benchmarks/<name>.py`` or ``experiments/<name>.py``, whichever holds the script."""
     root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location(name, root / "benchmarks" / f"{name}.py")
+    for folder in ("benchmarks", "experiments"):
+        if (root / folder / f"{name}.py").exists():
+            return root / folder / f"{name}.py"
+    raise FileNotFoundError(f"no script {name}.py in benchmarks/ or experiments/")
+
+
+def benchmark_module(name: str):
+    """A script of ``benchmarks/`` or ``experiments/`` imported as a module (the scripts
+    are not a package)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(name, script_path(name))
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

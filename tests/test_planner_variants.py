@@ -1,4 +1,4 @@
-"""benchmarks/planner_variants.py: pairing a variant with the recipe's own evaluation."""
+"""experiments/planner_variants.py: pairing a variant with the recipe's own evaluation."""
 
 import json
 

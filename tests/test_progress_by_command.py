@@ -1,4 +1,4 @@
-"""benchmarks/progress_by_command.py's count of rolled-over target episodes per command."""
+"""experiments/progress_by_command.py's count of rolled-over target episodes per command."""
 
 import numpy as np
 import torch

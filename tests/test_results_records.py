@@ -32,7 +32,7 @@ def test_twist_cheetah_run_records_rebuild_without_training(tmp_path, capsys):
 
 def _compare_runs():
     spec = importlib.util.spec_from_file_location("compare_runs",
-                                                  ROOT / "benchmarks" / "compare_runs.py")
+                                                  ROOT / "experiments" / "compare_runs.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module.main

@@ -1,4 +1,4 @@
-"""benchmarks/value_labels.py: discounted returns and the steps before a tip-over."""
+"""experiments/value_labels.py: discounted returns and the steps before a tip-over."""
 
 import numpy as np
 import torch

@@ -38,7 +38,7 @@ def test_console_script_help_runs_from_another_directory(script, tmp_path):
 
 
 def test_default_expert_resolves_outside_the_repository(tmp_path, monkeypatch):
-    from simdist.recipes.simdist_quadruped import Config
+    from simdist.pipelines.simdist import Config
     monkeypatch.chdir(tmp_path)
     path = resolve_expert(Config().expert)  # the default: checkpoints/quadruped_expert/...
     assert path.is_absolute() and path == committed_expert()

@@ -196,8 +196,10 @@ def test_without_an_mp4_encoder_the_recipe_warns_first_and_still_finishes(
         tmp_path, tiny_expert, capsys, monkeypatch):
     """A user whose install lacks imageio-ffmpeg (e.g. installed with --no-deps) gets the
     tables and the rerun recordings, and hears about the missing videos before any work."""
+    from simdist.pipelines.simdist import recording
     from simdist.recipes import simdist_quadruped
-    monkeypatch.setattr(simdist_quadruped, "video_backend_available", lambda: False)
+    for module in (simdist_quadruped, recording):
+        monkeypatch.setattr(module, "video_backend_available", lambda: False)
     with pytest.warns(UserWarning, match="without MP4 videos: writing MP4 videos needs"):
         proc = _run_here("--preset", "tiny", "--expert", tiny_expert, "--threads", 1,
                          "--output-dir", tmp_path, capsys=capsys)
@@ -240,7 +242,7 @@ def test_help_lists_every_config_field_with_its_default(capsys):
 
 
 def test_model_history_sets_the_encoders_window():
-    from simdist.recipes.simdist_quadruped import Config, new_agent
+    from simdist.pipelines.simdist import Config, new_agent
     agent = new_agent(Config(model_size="tiny", model_history=6), obs_dim=10, action_dim=3)
     assert agent.world_model.encoder.history == 6
     # each step: the observation and (the default) the previous action
@@ -250,7 +252,7 @@ def test_model_history_sets_the_encoders_window():
 
 
 def test_model_previous_action_makes_the_encoder_and_the_primer_carry_the_last_action():
-    from simdist.recipes.simdist_quadruped import Config, new_agent
+    from simdist.pipelines.simdist import Config, new_agent
     agent = new_agent(Config(model_size="tiny", model_previous_action=True), obs_dim=10,
                       action_dim=3)
     assert agent.world_model.encoder.action_dim == 3
@@ -264,7 +266,7 @@ def test_model_previous_action_makes_the_encoder_and_the_primer_carry_the_last_a
 
 def test_model_dynamics_hidden_and_latent_dim_resize_the_model_and_survive_save_and_load(tmp_path):
     from simdist.agents import SimDistAgent
-    from simdist.recipes.simdist_quadruped import Config, new_agent
+    from simdist.pipelines.simdist import Config, new_agent
     agent = new_agent(Config(model_size="tiny", model_dynamics_hidden=48), obs_dim=10, action_dim=3)
     wm = agent.world_model
     assert wm.dynamics.net[0].out_features == 48
@@ -281,7 +283,7 @@ def test_model_dynamics_hidden_and_latent_dim_resize_the_model_and_survive_save_
 
 def test_model_dynamics_residual_reaches_the_dynamics_and_a_mismatched_pretraining_is_refused(
         tmp_path):
-    from simdist.recipes.simdist_quadruped import Config, load_agent, new_agent
+    from simdist.pipelines.simdist import Config, load_agent, new_agent
     from simdist.utils import RunFolderError
     logit = Config(model_size="tiny", model_dynamics_residual="logit")
     assert new_agent(logit, obs_dim=10, action_dim=3).world_model.dynamics.residual == "logit"
@@ -298,7 +300,7 @@ def test_model_dynamics_residual_reaches_the_dynamics_and_a_mismatched_pretraini
 
 
 def test_finetune_consistency_reaches_every_finetuning_loss():
-    from simdist.recipes.simdist_quadruped import Config, new_agent
+    from simdist.pipelines.simdist import Config, new_agent
     agent = new_agent(Config(model_size="tiny", finetune_consistency="kl"), obs_dim=10,
                       action_dim=3, dynamics_members=2)
     assert [loss.consistency for loss in agent.finetune_losses] == ["kl", "kl"]
@@ -308,7 +310,7 @@ def test_finetune_consistency_reaches_every_finetuning_loss():
 def test_model_prior_bounds_give_the_prior_the_envs_joint_box_and_survive_save_and_load(
         tmp_path):
     from simdist.agents import SimDistAgent
-    from simdist.recipes.simdist_quadruped import Config, load_agent, new_agent
+    from simdist.pipelines.simdist import Config, load_agent, new_agent
     from simdist.utils import RunFolderError
     cfg = Config(model_size="tiny", model_prior_bounds=True)
     agent = new_agent(cfg, obs_dim=10, action_dim=12)
@@ -338,7 +340,7 @@ def test_model_prior_bounds_give_the_prior_the_envs_joint_box_and_survive_save_a
 
 
 def test_ignored_observation_groups_reach_the_encoder():
-    from simdist.recipes.simdist_quadruped import Config, new_agent, observation_layout
+    from simdist.pipelines.simdist import Config, new_agent, observation_layout
     layout = observation_layout("quadruped-terrain")
     cfg = Config(model_size="tiny", model_ignored_observations=["toe_force", "accelerometer"])
     agent = new_agent(cfg, obs_dim=layout.size, action_dim=12)
@@ -352,7 +354,7 @@ def test_a_finished_run_from_before_a_field_existed_loads_with_what_it_was_made_
     import copy
     import dataclasses
     from types import MappingProxyType
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     from simdist.utils.stages import ABSENT_MEANS
     stored = json.loads(json.dumps(dataclasses.asdict(recipe.Config(model_size="tiny")), default=str))
     del stored["model_history"], stored["model_ignored_observations"]  # an older folder
@@ -374,7 +376,7 @@ def test_a_finished_run_from_before_a_field_existed_loads_with_what_it_was_made_
 
 
 def test_hiding_observation_groups_needs_a_robot_data_task():
-    from simdist.recipes.simdist_quadruped import Config
+    from simdist.pipelines.simdist import Config
     with pytest.raises(ValueError, match="model_ignored_observations"):
         Config(model_size="tiny", data_task="cartpole-balance", model_ignored_observations=["gyro"])
     with pytest.raises(ValueError, match="unknown observation groups"):
@@ -382,13 +384,13 @@ def test_hiding_observation_groups_needs_a_robot_data_task():
 
 
 def test_dataset_dither_reaches_the_perturbation_schedule():
-    from simdist.recipes.simdist_quadruped import Config, dataset_config
+    from simdist.pipelines.simdist import Config, dataset_config
     assert dataset_config(Config(dataset_dither_std=0.3)).schedule.dither_std == 0.3
     assert dataset_config(Config()).schedule.dither_std == 0.0  # the reference schedule
 
 
 def test_planner_flags_reach_the_planner_config():
-    from simdist.recipes.simdist_quadruped import Config
+    from simdist.pipelines.simdist import Config
     assert Config(planner_policy_noise_steps=1).planner().policy_noise_steps == 1
     assert Config().planner().policy_noise_steps == 0  # noise on every step of the plan
     assert Config(planner_value_lambda=1.0).planner().value_lambda == 1.0  # terminal value
@@ -401,7 +403,7 @@ def test_planner_flags_reach_the_planner_config():
 
 
 def test_the_collection_planner_is_the_planner_unless_its_own_search_is_set():
-    from simdist.recipes.simdist_quadruped import PRESETS, Config
+    from simdist.pipelines.simdist import PRESETS, Config
     unset = dict(collect_planner_samples=0, collect_planner_iterations=0,
                  collect_planner_elites=0)
     assert Config(**unset).collect_planner() == Config().planner()
@@ -421,7 +423,7 @@ def test_the_collection_planner_is_the_planner_unless_its_own_search_is_set():
 
 def test_collection_plans_with_the_collection_planner_and_evaluation_with_the_planner(
         monkeypatch):
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     cfg = recipe.Config(model_size="tiny", model_latent_dim=0, episode_steps=8, slice_len=8,
                         model_horizon=3, collect_episodes=2, episodes=2, planner_horizon=3,
                         planner_samples=16, planner_iterations=2, planner_elites=4,
@@ -544,7 +546,7 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
 
 def test_members_pretrained_side_by_side_equal_those_trained_one_after_the_other(
         tmp_path, tiny_expert, monkeypatch):
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "pretrain_updates": 6},
                         ensemble_size=2, threads=2)
     assert recipe.member_jobs(cfg) == (2, 1)  # two processes of one thread each
@@ -554,7 +556,7 @@ def test_members_pretrained_side_by_side_equal_those_trained_one_after_the_other
                                             threads=2)) == (1, 2)
     dataset = recipe.dataset_stage(cfg, tiny_expert, tmp_path / "dataset")["path"]
     logged = []
-    monkeypatch.setattr(recipe, "log_metrics", lambda _, prefix, m, step: logged.append(
+    monkeypatch.setattr(recipe.jobs, "log_metrics", lambda _, prefix, m, step: logged.append(
         (prefix, step)))
     side_by_side = recipe.pretrain_stage(cfg, dataset, tiny_expert, tmp_path / "jobs")
     assert logged == [("pretrain", s) for s in range(1, 7)] + [
@@ -579,7 +581,7 @@ def test_members_pretrained_side_by_side_equal_those_trained_one_after_the_other
 
 def test_members_finetuned_side_by_side_equal_those_finetuned_one_after_the_other(
         tmp_path, tiny_expert, monkeypatch):
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     cfg = recipe.Config(**{**recipe.PRESETS["tiny"], "finetune_updates": 5},
                         ensemble_size=2, threads=2, ensemble_jobs=1, expert=tiny_expert)
     assert recipe.member_jobs(cfg, 2) == (1, 2)
@@ -588,7 +590,7 @@ def test_members_finetuned_side_by_side_equal_those_finetuned_one_after_the_othe
     dataset = recipe.dataset_stage(cfg, tiny_expert, tmp_path / "dataset")["path"]
     pretrained = recipe.pretrain_stage(cfg, dataset, tiny_expert, tmp_path / "pretrain")
     logged = []
-    monkeypatch.setattr(recipe, "log_metrics", lambda _, prefix, m, step: logged.append(
+    monkeypatch.setattr(recipe.jobs, "log_metrics", lambda _, prefix, m, step: logged.append(
         (prefix, step)))
     side = recipe.round_stage(dataclasses.replace(cfg, ensemble_jobs=2), 0, pretrained,
                               tiny_expert, tmp_path / "side", None)
@@ -610,7 +612,7 @@ def test_members_finetuned_side_by_side_equal_those_finetuned_one_after_the_othe
 
 def test_the_planner_stages_side_by_side_give_the_figures_of_one_process(tmp_path, tiny_expert,
                                                                           capsys):
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     from simdist.utils import load_memmap
     assert recipe.stage_jobs(recipe.Config(threads=2), 3) == (2, 1)  # the 2-core default
     assert recipe.stage_jobs(recipe.Config(threads=2, jobs=1), 3) == (1, 2)
@@ -718,15 +720,16 @@ def test_a_run_killed_inside_a_stage_resumes_to_the_uninterrupted_results(
 
 @pytest.mark.parametrize("reset", [True, False])
 def test_collecting_with_reset_upside_down_starts_a_fallen_world_again(reset, monkeypatch):
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     cfg = recipe.Config(model_size="tiny", model_latent_dim=0, episode_steps=12, slice_len=8,
                         model_horizon=3, collect_episodes=2, planner_horizon=3, planner_samples=16,
                         planner_iterations=1, planner_elites=4, planner_precision="none",
                         collect_reset_upside_down=reset, expert_targets=["sim"])
     agent = recipe.new_agent(cfg, obs_dim=89, action_dim=12)
-    envs, make_env, make_policy = [], recipe.locomotion_env, agent.policy
-    monkeypatch.setattr(recipe, "locomotion_env",
-                        lambda *a, **k: envs.append(make_env(*a, **k)) or envs[-1])
+    envs, make_env, make_policy = [], recipe.evaluation.locomotion_env, agent.policy
+    for module in (recipe.evaluation, recipe.collection):
+        monkeypatch.setattr(module, "locomotion_env",
+                            lambda *a, **k: envs.append(make_env(*a, **k)) or envs[-1])
 
     def flipping_policy(*args, **kwargs):  # turns world 1 onto its back before step 5
         policy, calls = make_policy(*args, **kwargs), []
@@ -752,7 +755,7 @@ def test_collecting_with_reset_upside_down_starts_a_fallen_world_again(reset, mo
 def test_the_reward_exponent_reaches_every_env_the_recipe_steps(monkeypatch):
     """``--reward-upright-power``: the dataset's config and the envs of collection,
     evaluation and planner evaluation all carry it (their rewards: tests/envs)."""
-    from simdist.recipes import simdist_quadruped as recipe
+    from simdist.pipelines import simdist as recipe
     cfg = recipe.Config(model_size="tiny", model_latent_dim=0, episode_steps=8, slice_len=6,
                         model_horizon=3, collect_episodes=2, episodes=2, planner_horizon=3,
                         planner_samples=16, planner_iterations=1, planner_elites=4,
@@ -761,15 +764,47 @@ def test_the_reward_exponent_reaches_every_env_the_recipe_steps(monkeypatch):
     assert recipe.dataset_config(cfg).upright_power == 10.0
     assert recipe.dataset_config(recipe.Config()).upright_power == 1.0
     agent = recipe.new_agent(cfg, obs_dim=89, action_dim=12)
-    powers, make_env = [], recipe.locomotion_env
+    powers, make_env = [], recipe.evaluation.locomotion_env
 
     def spy(*args, **kwargs):
         env = make_env(*args, **kwargs)
         powers.append({sim.task.upright_power for sim in env.base_env.sims})
         return env
 
-    monkeypatch.setattr(recipe, "locomotion_env", spy)
+    for module in (recipe.evaluation, recipe.collection):
+        monkeypatch.setattr(module, "locomotion_env", spy)
     recipe.collect_target_data(cfg, agent, steps=16, seed=0)
     recipe.evaluate_planner(cfg, agent, "sim")
     recipe.evaluate(cfg, "sim", lambda td: td.set("action", torch.zeros(*td.batch_size, 12)))
     assert powers == [{10.0}] * 3
+
+
+def test_a_runs_config_json_given_back_repeats_it_and_a_flag_changes_one_field(
+        tmp_path, capsys):
+    """``--config PATH``: a run's saved config.json (or its results.json) is the starting
+    point, flags still override; a bad file is refused before any work, by name."""
+    from simdist.pipelines.simdist import PRESETS, Config
+    from simdist.utils.cli import parse_config
+    saved = Config(**{**PRESETS["tiny"], "target": "foam", "episodes": 3,
+                      "planner_proposal_commands": (0.25, 0.5)})
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(dataclasses.asdict(saved)))
+    again, _ = parse_config(Config, PRESETS, ["--config", str(path)])
+    assert again == saved
+    changed, _ = parse_config(Config, PRESETS, ["--config", str(path), "--episodes", "5"])
+    assert changed == dataclasses.replace(saved, episodes=5)
+    (tmp_path / "results.json").write_text(json.dumps({"config": dataclasses.asdict(saved)}))
+    assert parse_config(Config, PRESETS, ["--config", str(tmp_path / "results.json")])[0] == saved
+    shown = " ".join(_run_here("--config", path, "--help", capsys=capsys).stdout.split())
+    assert "--target STR" in shown and "(default: foam)" in shown
+    path.write_text(json.dumps({**dataclasses.asdict(saved), "planner_samples": -1}))
+    (tmp_path / "other.json").write_text(json.dumps({"episodes": 3, "no_such_field": 1}))
+    (tmp_path / "broken.json").write_text("{")
+    for file, message in ((tmp_path / "none.json", "config: no file at"),
+                          (tmp_path / "other.json", "fields this program does not have: "
+                                                    "['no_such_field']"),
+                          (tmp_path / "broken.json", "is not a readable JSON file"),
+                          (path, "planner_*: ")):
+        proc = _run_here("--config", file, "--output-dir", tmp_path / "out", capsys=capsys)
+        assert proc.returncode == 2 and message in " ".join(proc.stderr.split()), proc.stderr
+        assert not (tmp_path / "out").exists()

@@ -11,7 +11,7 @@ import torch
 
 from simdist.agents import load_agent
 from simdist.viz import entity_paths
-from tests.in_process import run_script
+from tests.in_process import run_script, script_path
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = [sys.executable, str(ROOT / "recipes" / "twist_dmc.py")]
@@ -33,8 +33,9 @@ def _run_here(*args, capsys):
 
 
 def _benchmark(name: str, *args, capsys):
-    """``python benchmarks/<name>.py args`` in this process (see tests/in_process.py)."""
-    return run_script(ROOT / "benchmarks" / f"{name}.py", *args, capsys=capsys)
+    """``python experiments/<name>.py args`` (or ``benchmarks/``) in this process (see
+    tests/in_process.py)."""
+    return run_script(script_path(name), *args, capsys=capsys)
 
 
 def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
@@ -287,8 +288,16 @@ def recipe_cfg_episode_steps(outputs) -> int:
 
 
 def _recipe_module():
-    from simdist.recipes import twist_dmc
-    return twist_dmc
+    from simdist.pipelines import twist
+    return twist
+
+
+def _set_everywhere(name: str, value) -> None:
+    """Sets ``name`` in every module of :mod:`simdist.pipelines.twist` that imported it
+    (each stage module calls the helper by the name it imported)."""
+    for module_name, module in list(sys.modules.items()):
+        if module_name.startswith("simdist.pipelines.twist.") and hasattr(module, name):
+            setattr(module, name, value)
 
 
 def test_train_camera_records_d_under_camera_randomisation(tmp_path):
@@ -314,16 +323,16 @@ def test_train_camera_records_d_under_camera_randomisation(tmp_path):
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"], train_camera=True,
                               teacher_pixels="always", output_dir=str(tmp_path), jobs=1)
     seen = []
-    original = recipe.control_env
+    original = recipe.teacher.control_env
 
     def spy(*args, **kwargs):
         seen.append(kwargs.get("visual"))
         return original(*args, **kwargs)
-    recipe.control_env = spy
+    _set_everywhere("control_env", spy)
     try:
         recipe.teacher_stage(cfg, "cartpole-balance", 0, tmp_path / "teacher")
     finally:
-        recipe.control_env = original
+        _set_everywhere("control_env", original)
     assert visual in seen
     episodes = [e.to_tensordict() for e in load_episodes(tmp_path / "teacher")]
     pixels = torch.cat([e["next", "pixels"] for e in episodes])
@@ -482,7 +491,7 @@ def test_a_run_killed_inside_the_online_teacher_resumes_to_the_uninterrupted_res
 
 
 def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path, capsys):
-    """benchmarks/twist_teacher_budget.py: one Oracle figure per chunk, the run resumed
+    """experiments/twist_teacher_budget.py: one Oracle figure per chunk, the run resumed
     between chunks (more updates at each point), the blind references beside it."""
     out = tmp_path / "budget"
     run = _benchmark("twist_teacher_budget", "--preset", "tiny", "--steps", "40", "--chunk",
@@ -513,7 +522,7 @@ def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path, capsys):
 
 
 def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_path, capsys):
-    """benchmarks/pixel_dreamer_budget.py: a pixel Dreamer at another update rate, scored
+    """experiments/pixel_dreamer_budget.py: a pixel Dreamer at another update rate, scored
     on held-out scenes and dm_control's own, beside the blind references; a larger
     --steps continues the same run (more updates, the first episodes' returns kept)."""
     out = tmp_path / "budget"
@@ -589,7 +598,7 @@ def test_pixel_dreamer_budget_benchmark_evaluates_both_scenes_and_resumes(tmp_pa
         proc = _benchmark("pixel_dreamer_budget", "--preset", "tiny", "--agent", "sac",
                           flag, value, "--out", out, capsys=capsys)
         assert proc.returncode == 2 and "are the Dreamer's" in proc.stderr
-    # its control: the same SAC with a state actor (benchmarks/state_sac_budget.py)
+    # its control: the same SAC with a state actor (experiments/state_sac_budget.py)
     proc = _benchmark("state_sac_budget", "--steps", 60, "--prefill", 20, "--train-every",
                       10, "--n-step", 2, "--eval-episodes", 1, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
@@ -677,7 +686,7 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
     cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"], camera_id=1,
                               output_dir=str(tmp_path), jobs=1)
     cameras = []
-    original_env, original_eval = recipe.control_env, recipe.evaluate_returns
+    original_env, original_eval = recipe.teacher.control_env, recipe.teacher.evaluate_returns
 
     def env_spy(*args, **kwargs):
         if kwargs.get("pixels"):
@@ -688,13 +697,15 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
         if kwargs.get("pixels", args[6] if len(args) > 6 else False):  # not the state
             cameras.append(("evaluate", kwargs.get("camera_id")))  # teacher's selection
         return original_eval(*args, **kwargs)
-    recipe.control_env, recipe.evaluate_returns = env_spy, eval_spy
+    _set_everywhere("control_env", env_spy)
+    _set_everywhere("evaluate_returns", eval_spy)
     try:
         teacher = recipe.teacher_stage(cfg, "cartpole-balance", 0, tmp_path / "teacher")
         recipe.student_stage(cfg, "cartpole-balance", 0, teacher, {}, tmp_path / "student")
         recipe.pixel_dreamer_stage(cfg, "cartpole-balance", 0, None, tmp_path / "dreamer")
     finally:
-        recipe.control_env, recipe.evaluate_returns = original_env, original_eval
+        _set_everywhere("control_env", original_env)
+        _set_everywhere("evaluate_returns", original_eval)
     # D, the student's evaluation, the Dreamer's training env and its two evaluations
     # (held-out scenes, then its own training scene: it trained without DR)
     assert [kind for kind, _ in cameras] == ["env", "evaluate", "env", "evaluate", "evaluate"]
@@ -705,7 +716,7 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
         assert load_agent(tmp_path / saved).checkpoint_meta["camera_id"] == 1
     # a camera the task's model does not have is refused by name before any work
     with pytest.raises(ValueError, match="camera_id 7 does not exist in 'cartpole-balance'"):
-        recipe.control_env("cartpole-balance", 0, pixels=True, camera_id=7)
+        recipe.teacher.control_env("cartpole-balance", 0, pixels=True, camera_id=7)
 
 
 def test_teacher_actor_noise_reaches_only_the_teachers_actor_critic():
@@ -744,9 +755,9 @@ def test_teacher_selection_deploys_the_best_validated_snapshot(teacher_chain_run
     # the chosen snapshot's validation figure is reproduced by evaluating it again
     cfg = recipe.Config(**recipe.PRESETS["tiny"])
     agent = recipe.load_teacher(cfg, "cartpole-balance", teacher)
-    again = recipe.evaluate_returns(
+    again = recipe.teacher.evaluate_returns(
         "cartpole-balance", agent.policy(explore=False), agent.make_primer(),
-        recipe.stage_seed(0, "cartpole-balance/teacher_selection"), cfg.teacher_select_episodes,
+        recipe.teacher.stage_seed(0, "cartpole-balance/teacher_selection"), cfg.teacher_select_episodes,
         cfg.eval_steps, pixels=False, visual=None)
     assert again["mean"] == pytest.approx(best["mean"], rel=1e-5)
     # the deployed teacher file (what the Oracle and the students load) is that snapshot
@@ -801,7 +812,7 @@ def test_student_readout_picks_the_committed_readout_only_where_it_fits(tmp_path
     # an explicit file fitted for another task is refused, not silently used
     meta = json.loads(committed.with_suffix(".json").read_text())
     other = tmp_path / "other.pt"
-    recipe.StateReadout.load(committed).save(other, {**meta, "task": "cheetah-run"})
+    recipe.readout.StateReadout.load(committed).save(other, {**meta, "task": "cheetah-run"})
     explicit = dataclasses.replace(cfg, student_readout=str(other))
     assert recipe.readout_file(explicit, "cheetah-run") == other
     with pytest.raises(ValueError, match="fitted for task 'cheetah-run'"):
@@ -816,7 +827,7 @@ def test_readout_training_runs_keep_long_runs_inside_the_domain_as_readings():
     from tensordict import TensorDict
 
     recipe = _recipe_module()
-    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    readout = recipe.readout.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
     # 12 steps: upright for 5, the pole past 0.3 rad for 2, upright for 3, cart at 1.5 m
     # for 2; runs of >= 3 steps: steps 0-4 and 7-9
     angle = torch.tensor([0.0] * 5 + [0.5] * 2 + [0.1] * 3 + [0.0] * 2)
@@ -950,7 +961,7 @@ def test_committed_cartpole_readout_does_not_read_a_fallen_pole_as_upright():
 
 def _committed_readout():
     recipe = _recipe_module()
-    return recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    return recipe.readout.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
 
 
 def _render_poses(poses: torch.Tensor, seed: int) -> torch.Tensor:
@@ -979,11 +990,11 @@ def test_reading_noise_is_drawn_in_updates_at_the_readouts_spread():
     recipe = _recipe_module()
     cfg = dataclasses.replace(recipe.Config(), model_size="tiny",
                               readout_student_reading_noise=0.1)
-    readout = recipe.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
+    readout = recipe.readout.StateReadout.load(recipe.READOUT_DIR / "cartpole-balance.pt")
     teacher = recipe.teacher_agent(cfg, "cartpole-balance")
     assert isinstance(teacher, DreamerAgent)
     twist = recipe.new_readout_student(cfg, "cartpole-balance", teacher, readout, {})
-    assert isinstance(twist.augment, recipe.ReadingNoise)
+    assert isinstance(twist.augment, recipe.readout.ReadingNoise)
     assert torch.allclose(twist.augment.std, 0.1 * readout.std)
     readings = torch.zeros(2, 4, 3)
     batch = TensorDict({"action": torch.zeros(2, 4, 1),
@@ -1058,7 +1069,7 @@ def test_pixel_dreamers_take_their_own_actor_form_and_the_teacher_keeps_its_own(
 
 
 def test_dreamer_latent_probe_reads_saved_and_training_checkpoints(tmp_path, capsys):
-    """benchmarks/dreamer_latent_probe.py: R^2 per state dimension of a trained and a
+    """experiments/dreamer_latent_probe.py: R^2 per state dimension of a trained and a
     re-drawn pixel Dreamer, from a saved agent or an online run's training checkpoint;
     a state Dreamer is refused."""
     from simdist.agents import DreamerAgent
@@ -1139,3 +1150,20 @@ def test_dreamer_latent_probe_fits_a_world_model_alone_on_random_data(tmp_path, 
                 ("--fit-random", 2, "--eval-episodes", 2)):
         proc = _benchmark("dreamer_latent_probe", *bad, capsys=capsys)
         assert proc.returncode == 2, bad
+
+
+def test_a_runs_config_json_given_back_repeats_it(tmp_path, capsys):
+    import dataclasses
+    from simdist.pipelines.twist import PRESETS, Config
+    from simdist.utils.cli import parse_config
+    saved = Config(**{**PRESETS["tiny"], "tasks": ["cheetah-run"], "seeds": [1, 2],
+                      "students": ["twist"]})
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(dataclasses.asdict(saved)))
+    assert parse_config(Config, PRESETS, ["--config", str(path)])[0] == saved
+    again = parse_config(Config, PRESETS, ["--config", str(path), "--seeds", "3"])[0]
+    assert again == dataclasses.replace(saved, seeds=[3])
+    proc = _run_here("--config", tmp_path / "none.json", "--output-dir", tmp_path / "out",
+                     capsys=capsys)
+    assert proc.returncode == 2 and "config: no file at" in proc.stderr
+    assert not (tmp_path / "out").exists()

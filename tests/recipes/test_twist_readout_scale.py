@@ -1,4 +1,4 @@
-"""benchmarks/twist_readout_scale.py: state draws, targets, renders and the probe's rows."""
+"""experiments/twist_readout_scale.py: state draws, targets, renders and the probe's rows."""
 
 import json
 import math
@@ -79,7 +79,7 @@ def test_main_saves_one_readout_per_camera_and_size_that_the_recipe_loads(tmp_pa
     meta = json.loads((tmp_path / "ro" / "readout_none_6.json").read_text())
     assert meta["task"] == "cartpole-balance" and "--save-readouts" in meta["command"]
     assert len(meta["rmse_x_cos_sin"]["rmse_heldout"]) == 3
-    from simdist.recipes import twist_dmc
+    from simdist.pipelines import twist as twist_dmc
     cfg = twist_dmc.Config(student_readout=str(tmp_path / "ro" / "readout_none_6.pt"))
     assert twist_dmc.readout_file(cfg, "cartpole-balance").name == "readout_none_6.pt"
 

@@ -40,7 +40,7 @@ class AsymmetricSACConfig:
     baseline uses ``frames=3, n_step=3, tau=0.02`` (DrQ-v2's stack and n-step return):
     measured on cartpole-balance without DR at 3000 updates, that learns to balance from
     pixels on its training scene (976 of ~1000) where ``frames=3`` alone scores 339,
-    near random actions (benchmarks/README.md, "Asymmetric SAC that balances").
+    near random actions (docs/findings.md, "Asymmetric SAC that balances").
 
     Examples:
         >>> AsymmetricSACConfig().shift_pad
@@ -60,11 +60,11 @@ class AsymmetricSACConfig:
     # the critic's target sums this many discounted rewards before it bootstraps (DrQ-v2:
     # 3). With few updates a 1-step target carries reward back ~tau * updates steps; n
     # steps carry it n times as far (with tau 0.02 the recipe's pixel baseline learns
-    # cartpole at 3000 updates; with 1 and 0.005 it does not: benchmarks/README.md)
+    # cartpole at 3000 updates; with 1 and 0.005 it does not: docs/findings.md)
     n_step: int = 1
     # LayerNorm on the critic's state input. Off: on cartpole's 5-d state it erases each
     # sample's mean and scale, and SAC from the state then does not learn (state SAC,
-    # 11000 updates: 234 with it, training episodes up to 994 without; benchmarks/README.md)
+    # 11000 updates: 234 with it, training episodes up to 994 without; docs/findings.md)
     critic_layer_norm: bool = False
 
     def __post_init__(self):

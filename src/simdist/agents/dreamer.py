@@ -81,7 +81,7 @@ class DreamerConfig:
     # standardise a vector reconstruction target per dimension by its running mean and
     # std (TargetStandardiser) so each dimension weighs the same; unused by image
     # decoders. Dreamer State Recon.'s raw cartpole state puts ~90% of the loss on the
-    # pole's angular velocity and ~2% on its lean (benchmarks/README.md, "A standardised
+    # pole's angular velocity and ~2% on its lean (docs/findings.md, "A standardised
     # state target for Dreamer State Recon.")
     standardise_reconstruction: bool = False
 

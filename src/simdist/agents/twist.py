@@ -225,7 +225,7 @@ class TwistStudent(ckpt_format.LoadableAgent):
                 f"student's is the other way ({len(fallback)} keys differ, e.g. "
                 f"{fallback[0]!r}): it was saved with another readout file. Build the "
                 "student with the readout it was trained with, or re-deploy a finished "
-                "run through today's file with benchmarks/twist_redeploy_readout.py")
+                "run through today's file with experiments/twist_redeploy_readout.py")
         self.student.load_state_dict(state["student"])
         self.optim.load_state_dict(state["optim"])
 
@@ -237,7 +237,7 @@ class TwistStudent(ckpt_format.LoadableAgent):
             action_spec: the env's TorchRL action spec, checked to be ``[-1, 1]`` (the
                 teacher actor's range; see :meth:`DreamerAgent.policy`).
             actor: another actor on the student's latent (e.g. one fitted by
-                ``benchmarks/twist_dagger.py``); default: the teacher's, as in TWIST.
+                ``experiments/twist_dagger.py``); default: the teacher's, as in TWIST.
         """
         check_unit_box(action_spec)
         actor = self.teacher.actor if actor is None else actor

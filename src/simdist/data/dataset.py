@@ -289,7 +289,7 @@ def _shards_side_by_side(cfg: DatasetConfig, todo, expert, snapshots, jobs: int,
     as one collector makes). Each call makes a run of consecutive shards with one
     collector, about four calls per worker: a call pays for building the collector and its
     batched worlds, and one call per shard gained 1.18x over one process against 1.66x
-    for runs of shards (benchmarks/README.md, "Within 30 minutes")."""
+    for runs of shards (docs/findings.md, "Within 30 minutes")."""
     size = max(1, math.ceil(len(todo) / (4 * jobs)))
     chunks = [list(todo[i:i + size]) for i in range(0, len(todo), size)]
     calls = [(_shard_chunk, (cfg, chunk, expert, list(snapshots))) for chunk in chunks]
@@ -412,7 +412,7 @@ def load_dataset(path: str | Path, slice_len: int, batch_size: int,
         raise ValueError("batch_size counts transitions: make it a multiple of slice_len")
     # The storage never changes: cache the episodes' boundaries instead of rescanning every
     # row's episode id at each sample (the same slices, 1.9x faster sampling at the
-    # recipe's 384k rows on quiet cores; benchmarks/README.md, "Within 30 minutes").
+    # recipe's 384k rows on quiet cores; docs/findings.md, "Within 30 minutes").
     sampler = SliceSampler(slice_len=slice_len, traj_key="episode", strict_length=True,
                            cache_values=True)
     buffer = TensorDictReplayBuffer(storage=TensorStorage(data), sampler=sampler,

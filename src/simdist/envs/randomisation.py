@@ -149,8 +149,9 @@ class VisualRandomisation:
     """Visual domain randomisation, MuJoCo-native (model edits + texture uploads).
 
     Args:
-        textures: texture split for skybox and floor (``"train"`` / ``"heldout"``), or
-            ``None`` to keep the nominal textures.
+        textures: texture split for skybox and floor (``"train"``, ``"validation"`` or
+            ``"heldout"``; see :mod:`simdist.envs.textures`), or ``None`` to keep the
+            nominal textures.
         colours: colour split for robot/object materials, or ``None``.
         lighting: randomise light intensity, tint and position.
         camera: randomise the render camera's pose (TWIST: at evaluation).
@@ -195,6 +196,18 @@ class VisualRandomisation:
     def training(cls, **overrides) -> VisualRandomisation:
         """TWIST training: train textures and colours, re-drawn every step."""
         return dataclasses.replace(cls(), **overrides)
+
+    @classmethod
+    def validation(cls, **overrides) -> VisualRandomisation:
+        """Scenes to choose on: unseen validation textures, train colours, camera jitter,
+        drawn per episode, like :meth:`heldout_evaluation` but never its textures.
+
+        Examples:
+            >>> VisualRandomisation.validation().textures
+            'validation'
+        """
+        base = cls(textures="validation", colours="train", camera=True, every_step=False)
+        return dataclasses.replace(base, **overrides)
 
     @classmethod
     def heldout_evaluation(cls, **overrides) -> VisualRandomisation:

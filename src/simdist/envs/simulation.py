@@ -185,7 +185,7 @@ class Simulation:
         as they are, and no time passes), then, when ``redraw`` and a visual randomisation
         is set, draws fresh textures, colours, light and camera pose before rendering:
         images of chosen states, e.g. the training set of a perception model
-        (``benchmarks/twist_readout_scale.py``). The episode's physics is changed: call
+        (``experiments/twist_readout_scale.py``). The episode's physics is changed: call
         :meth:`reset` before stepping again.
 
         Raises:

@@ -1,10 +1,14 @@
-"""Procedural texture and colour banks with disjoint train / held-out splits.
+"""Procedural texture and colour banks with disjoint train / validation / held-out splits.
 
 Nothing can be downloaded at run time, so backgrounds and floors come from seeded
 procedural generators (checkers, stripes, smooth noise, blobs, gradients). Each item of a
 bank is drawn from its own ``numpy`` seed sequence keyed by ``(bank seed, split, index)``;
-the ``train`` and ``heldout`` splits use different split keys, so no held-out item is ever
-generated for training (a test also checks that no two items coincide pixel-wise).
+the splits use different split keys, so no held-out item is ever generated for training
+(a test also checks that no two items coincide pixel-wise).
+
+The three splits have three jobs: ``train`` is what training randomises over;
+``validation`` holds unseen items of the training distribution, on which defaults, gates
+and candidates may be chosen; ``heldout`` is the reporting bank, only ever evaluated on.
 """
 
 from __future__ import annotations
@@ -13,8 +17,9 @@ import functools
 
 import numpy as np
 
-SPLITS = ("train", "heldout")
-_SPLIT_KEYS = {"train": 0, "heldout": 1}
+SPLITS = ("train", "validation", "heldout")
+# train and heldout keep the keys they always had: adding validation changes no item of them
+_SPLIT_KEYS = {"train": 0, "heldout": 1, "validation": 2}
 
 
 def check_split(split: str) -> str:

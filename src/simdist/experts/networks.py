@@ -42,7 +42,7 @@ class QNetwork(nn.Module):
         super().__init__()
         # LayerNorm over a handful of heterogeneous features (cartpole's 5-d state) erases
         # each sample's mean and scale, two of its five degrees of freedom: measured, SAC
-        # with it does not learn cartpole-balance (benchmarks/README.md); the quadruped's
+        # with it does not learn cartpole-balance (docs/findings.md); the quadruped's
         # ~70-d observation keeps it (the committed expert was trained with it)
         self.norm = nn.LayerNorm(obs_dim) if layer_norm else nn.Identity()
         self.net = MLP(in_features=obs_dim + action_dim, out_features=1,

@@ -2,7 +2,7 @@
 
 A finetuned SimDist model ranks the planner's candidate plans only loosely against the
 true dynamics; independently trained models err partly independently, so the mean of
-their predictions ranks better than any one of them (`benchmarks/README.md`, "Several
+their predictions ranks better than any one of them (`docs/findings.md`, "Several
 world models"). :class:`WorldModelEnsemble` puts K models side by side behind the verbs
 and parts the planner and :class:`~simdist.agents.SimDistPolicy` use, so the recipe's
 planner runs on it unchanged: each member encodes the history into its own latent and

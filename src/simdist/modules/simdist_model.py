@@ -20,7 +20,7 @@ SIMDIST_SIZES = {
     "tiny": dict(latent_dim=16, hidden=32, history=2, simnorm_groups=4),
     "small": dict(latent_dim=64, hidden=256, history=4, simnorm_groups=8),
     # The paper's width on the CPU default's 4-step history: on the slippery slope it is the
-    # one change that moved the finetuned planner (benchmarks/README.md, issue 21 sections).
+    # one change that moved the finetuned planner (docs/findings.md, issue 21 sections).
     "wide": dict(latent_dim=64, hidden=512, history=4, simnorm_groups=8),
     "paper": dict(latent_dim=64, hidden=512, history=25, simnorm_groups=8),
 }

@@ -3,7 +3,7 @@
 A TWIST student whose CNN learns only from the teacher's latents reads the cartpole's pole
 too coarsely to balance it (docs/methods.md, section 2.7). :class:`StateReadout` is a CNN
 and a linear head fitted *supervised* to the privileged positions of many domain-randomised
-renders (``benchmarks/twist_readout_scale.py``), then frozen; :class:`ReadoutEncoder`
+renders (``experiments/twist_readout_scale.py``), then frozen; :class:`ReadoutEncoder`
 feeds its readings to a trainable state encoder, so that the student RSSM learns the
 velocities and the teacher's latent from the readings, as a state student would.
 
@@ -12,7 +12,7 @@ it: a student whose pole swings out of that box reads nonsense and cannot bring 
 A second, coarse readout fitted on every pose can be attached as the ``fallback``: it
 answers wherever the precise readout's own reading leaves its ``gate`` box or the
 fallback's reading leaves the ``fallback_gate`` box (a precise readout shown a hanging
-pole may still read an upright one, so the coarse reading has a say; benchmarks/README.md,
+pole may still read an upright one, so the coarse reading has a say; docs/findings.md,
 "What the perception gap is made of").
 """
 

@@ -5,7 +5,7 @@ its variance. Dreamer State Recon.'s target on cartpole is ``[x, cos, sin, v, om
 with variances ~1.4 / .5 / .5 / .9 / 25 on random-action episodes: the angular velocity
 carries ~90% of the loss and the pole's lean (``sin``) ~2%, so the ELBO barely asks the
 latent for the lean. Standardising each dimension by its running mean and standard
-deviation gives every dimension the same weight (benchmarks/README.md, "A standardised
+deviation gives every dimension the same weight (docs/findings.md, "A standardised
 state target for Dreamer State Recon.").
 """
 

@@ -6,7 +6,7 @@ as pretrained. The most a perfect finetune could give is therefore the same plan
 dynamics of the deployment domain in place of the learned ones. :class:`SimulatorDynamics`
 is that model: a candidate's "latent" is ``[world index, MuJoCo state, observation
 history]``; stepping it runs MuJoCo on a scratch copy of that world; the heads read the
-encoded history. ``benchmarks/simulator_dynamics_planner.py`` evaluates it.
+encoded history. ``experiments/simulator_dynamics_planner.py`` evaluates it.
 """
 
 from __future__ import annotations

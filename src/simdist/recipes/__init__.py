@@ -13,7 +13,8 @@
 
 ``python -m simdist.recipes.<module>`` and, in a checkout, ``python recipes/<module>.py``
 run the same code; each script's ``--help`` lists its flags with their defaults. The recipes are
-scripts, not API: import them only to reuse a recipe's ``Config``.
+scripts, not API: the stages and configs they run are :mod:`simdist.pipelines.simdist` and
+:mod:`simdist.pipelines.twist`, which Python users import and compose.
 """
 
 import importlib

@@ -28,7 +28,7 @@ def main(argv=None):
     parser.add_argument("--shard-episodes", type=int, default=DatasetConfig.shard_episodes,
                         help="worlds stepped together (one collector batch); more amortise "
                              "the per-step policy cost: 64 gave 0.70x raw dm_control, 32 "
-                             "0.59x (benchmarks/README.md)")
+                             "0.59x (docs/findings.md)")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes stepping the worlds (TorchRL ParallelEnv)")
     parser.add_argument("--backend", choices=["local", "ray"], default="local",

@@ -16,15 +16,18 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import json
 import math
 import sys
+import typing
+from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence, TypeVar
 
 # imported here, not lazily: tyro's import hashes every builtin, and a doctest's `_` can
 # hold an unhashable tuple by then
 import tyro
 
-from simdist.utils.stages import FolderInUseError, RunFolderError
+from simdist.utils.stages import FolderInUseError, RunFolderError, field_defaults
 
 T = TypeVar("T")
 
@@ -80,9 +83,11 @@ def parse_config(config_type: type[T], presets: Mapping[str, Mapping[str, Any]],
     """Parses ``argv`` into a ``config_type`` instance, starting from ``--preset``'s values.
 
     Every field of the dataclass is a ``--kebab-case`` flag with its default and help;
-    ``--preset NAME`` (listed in the description) picks the defaults. A value the
-    dataclass's ``__post_init__`` rejects ends the program with exit status 2 and an
-    ``error:`` line, as argparse does, before any work.
+    ``--preset NAME`` (listed in the description) picks the defaults, and ``--config
+    PATH`` (a run's saved ``config.json``) replaces them with that run's values, so a
+    run can be repeated, or repeated with one flag changed. A value the dataclass's
+    ``__post_init__`` rejects, or a config file that cannot be read, ends the program
+    with exit status 2 and an ``error:`` line, as argparse does, before any work.
 
     Args:
         config_type: the recipe's config dataclass.
@@ -109,12 +114,16 @@ def parse_config(config_type: type[T], presets: Mapping[str, Mapping[str, Any]],
     names = sorted(presets)
     pre = argparse.ArgumentParser(add_help=False, prog=prog)
     pre.add_argument("--preset", choices=names, default="default")
+    pre.add_argument("--config", default=None)
     known, rest = pre.parse_known_args(argv)
     text = (f"{description or ''}\n\n--preset {{{','.join(names)}}}: start from that preset's "
-            "values (default: default); every other flag overrides them. Each flag below shows "
-            "the chosen preset's value as its default.").strip()
+            "values (default: default). --config PATH: start from a run's saved config.json "
+            "instead (after the preset). Every other flag overrides them; each flag below "
+            "shows the value it starts from as its default.").strip()
     try:
         default = dataclasses.replace(config_type(), **presets[known.preset])
+        if known.config is not None:
+            default = dataclasses.replace(default, **config_file(config_type, known.config))
         config = tyro.cli(config_type, default=default, args=rest, description=text, prog=prog)
     except ConfigError as error:
         usage = prog or sys.argv[0]
@@ -122,6 +131,51 @@ def parse_config(config_type: type[T], presets: Mapping[str, Mapping[str, Any]],
               f"{usage}: error: {error}", file=sys.stderr)
         raise SystemExit(2) from error
     return config, known.preset
+
+
+def config_file(config_type: type, path: str | Path) -> dict[str, Any]:
+    """The fields a saved config file (a run's ``config.json``) sets, typed for
+    ``config_type``. A field the file predates reads as what such a run was made with
+    (its ``ABSENT_MEANS``, see :func:`~simdist.utils.stages.field_defaults`).
+
+    Raises:
+        ConfigError: the file is missing, not JSON, not an object, or names a field
+            ``config_type`` does not have.
+
+    Examples:
+        >>> import tempfile
+        >>> @dataclasses.dataclass
+        ... class Demo:
+        ...     episodes: int = 8
+        ...     commands: tuple[float, ...] = ()
+        >>> path = Path(tempfile.mkdtemp()) / "config.json"
+        >>> _ = path.write_text('{"episodes": 3, "commands": [0.5]}')
+        >>> config_file(Demo, path)
+        {'episodes': 3, 'commands': (0.5,)}
+    """
+    path = Path(path)
+    try:
+        stored = json.loads(path.read_text())
+    except FileNotFoundError as error:
+        raise ConfigError(f"config: no file at {path}") from error
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ConfigError(f"config: {path} is not a readable JSON file ({error})") from error
+    if isinstance(stored, dict) and isinstance(stored.get("config"), dict):
+        stored = stored["config"]  # a results.json holds its config under "config"
+    if not isinstance(stored, dict):
+        raise ConfigError(f"config: {path} must hold a JSON object of config fields")
+    fields = {f.name for f in dataclasses.fields(config_type)}
+    unknown = sorted(set(stored) - fields)
+    if unknown:
+        raise ConfigError(f"config: {path} names fields this program does not have: "
+                          f"{unknown}")
+    absent = field_defaults(config_type)
+    values = {**{k: absent[k] for k in fields - set(stored) if k in absent}, **stored}
+    hints = typing.get_type_hints(config_type)
+    for name, value in values.items():  # JSON has lists only; a tuple field gets a tuple
+        if isinstance(value, list) and typing.get_origin(hints.get(name)) is tuple:
+            values[name] = tuple(value)
+    return values
 
 
 @contextlib.contextmanager

@@ -10,7 +10,7 @@
 
 Why ``"auto"`` exists: on a CPU without AVX512 (AVX2 only), PyTorch has no fast bfloat16
 matmul kernel and falls back to a reference loop; one SimDist pretraining update of the
-wide model then takes 16-25x the float32 time (benchmarks/README.md, "bfloat16 on a CPU
+wide model then takes 16-25x the float32 time (docs/findings.md, "bfloat16 on a CPU
 without AVX512"), where CPUs with AVX512-BF16 run it 2.3-2.6x faster than float32.
 
 Examples:
