@@ -15,9 +15,10 @@ Dreamer's imagination; an actor learns only from the second, so a model whose im
 rewards do not fall where the true ones do gives it nothing to learn from.
 
 ``--agent`` is a saved agent (``dreamer_agent.pt``, self-describing) or, with
-``--training``, the checkpoint an online run keeps beside its episodes (``agent.pt``: the
-weights only, rebuilt as the recipe's pixel Dreamer of ``--preset`` with the given actor
-form and ``--encoder``), so a run stopped before its end can be probed.
+``--training``, the checkpoint an online run keeps beside its episodes (``training.pt``;
+``agent.pt`` in folders made before: the weights only, rebuilt as the recipe's pixel
+Dreamer of ``--preset`` with the given actor form and ``--encoder``), so a run stopped
+before its end can be probed.
 
 With ``--fit-random N`` there is no agent to read: the recipe's pixel Dreamer of
 ``--preset`` (with ``--encoder``) is built fresh and only its world model trains, on
@@ -41,7 +42,7 @@ latent is read from the state.
 
 Usage:
     python experiments/dreamer_latent_probe.py --agent RUN/.../dreamer_agent.pt
-    python experiments/dreamer_latent_probe.py --training --agent STAGE/agent.pt \
+    python experiments/dreamer_latent_probe.py --training --agent STAGE/training.pt \
         --actor-distribution trunc_normal
     python experiments/dreamer_latent_probe.py --agent A.pt --episodes 32 --steps 250 --json out.json
     python experiments/dreamer_latent_probe.py --fit-random 10 --updates 250 500 1000 \
@@ -301,7 +302,7 @@ def main(argv=None) -> None:
     parser.add_argument("--camera-id", type=int, help="as the agent trained (default: task's)")
     parser.add_argument("--dr", action="store_true", help="the recipe's training DR scenes")
     parser.add_argument("--training", action="store_true",
-                        help="--agent is an online run's training checkpoint (agent.pt)")
+                        help="--agent is an online run's training checkpoint (training.pt)")
     parser.add_argument("--preset", default="default", choices=sorted(recipe.PRESETS),
                         help="--training: the recipe preset whose pixel Dreamer it is")
     parser.add_argument("--actor-distribution", default="tanh_normal",

@@ -16,10 +16,11 @@ def test_twist_cheetah_run_records_rebuild_without_training(tmp_path, capsys):
     kept = ROOT / "results" / "twist_cheetah_run_2026-12-02"
     out = tmp_path / "run"
     shutil.copytree(kept, out)
-    # the command of results/README.md (--jobs 1: nothing is left to run in parallel)
+    # the command of results/README.md (--jobs 1: nothing is left to run in parallel; the
+    # run was made when "auto" was the default, which on cheetah-run is the CNN student)
     done = run_script(ROOT / "recipes" / "twist_dmc.py", "--tasks", "cheetah-run", "--seeds",
-                      0, 1, 2, 3, 4, "--no-baselines", "--no-record", "--jobs", 1, "--output-dir",
-                      out, capsys=capsys)
+                      0, 1, 2, 3, 4, "--no-baselines", "--no-record", "--jobs", 1,
+                      "--student-readout", "auto", "--output-dir", out, capsys=capsys)
     assert done.returncode == 0, done.stderr
     assert done.stdout.count("already done") == 30  # 6 stages x 5 seeds: nothing trained
     rebuilt = json.loads((out / "results.json").read_text())

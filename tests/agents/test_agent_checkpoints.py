@@ -225,3 +225,18 @@ def test_ignored_inputs_survive_the_round_trip(tmp_path):
     assert loaded.encoder.ignored_inputs == (2, 7)
     window = torch.randn(4, loaded.encoder.history, 10)
     torch.testing.assert_close(loaded.encode(window), wm.encode(window))
+
+
+def test_a_training_checkpoint_is_named_for_what_it_is_and_never_to_be_deleted(tmp_path):
+    """Agent files and training checkpoints: one name each (an online run's checkpoint is
+    training.pt), and load_agent on a training checkpoint names the file to load instead
+    rather than calling it corrupt."""
+    from simdist.agents import load_agent
+    from simdist.agents.checkpoint import NotAnAgentFileError
+    from simdist.utils import save_atomic
+    path = tmp_path / "training.pt"
+    save_atomic({"agent": {}, "episodes": 3, "history": [{}], "returns": [1.0]}, path)
+    with pytest.raises(NotAnAgentFileError, match="is a training checkpoint") as error:
+        load_agent(path)
+    assert "teacher_agent.pt" in str(error.value)
+    assert "delete" not in str(error.value).lower() and "corrupt" not in str(error.value)

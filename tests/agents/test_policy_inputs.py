@@ -2,7 +2,6 @@
 
 import pytest
 import torch
-from tensordict import TensorDict
 from torchrl.envs import InitTracker, TransformedEnv
 
 from simdist.agents import (AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgent,
@@ -77,4 +76,25 @@ def test_every_policy_refuses_non_finite_input_naming_the_key(name):
     td[key][(0,) * td[key].dim()] = float("nan")  # one entry
     with pytest.raises(ValueError, match=f"'{key}' contains 1 non-finite"):
         policy(td)
+    env.close()
+
+
+@pytest.mark.parametrize("name", ["twist", "asymmetric_sac"])
+def test_pixel_policies_refuse_float_images_off_the_encoders_scale_naming_the_key(name):
+    """uint8 frames, or floats already in [-0.5, 0.5]; a [0, 1] or [0, 255] float frame
+    would be read off-scale without a word, and a wrong shape names the expected one."""
+    task, pixels, make = POLICIES[name]
+    torch.manual_seed(0)
+    env = TransformedEnv(make_env(task, pixels=pixels, seed=0, num_envs=2), InitTracker())
+    policy, _ = make(env)
+    td = env.reset()
+    frames = td["pixels"]
+    td["pixels"] = frames.float() / 255.0  # [0, 1]: off the encoders' scale
+    with pytest.raises(ValueError, match=r"float 'pixels' must lie in \[-0.5, 0.5\]"):
+        policy(td.clone())
+    td["pixels"] = frames.float() / 255.0 - 0.5  # the encoders' own scale: accepted
+    assert torch.isfinite(policy(td.clone())["action"]).all()
+    td["pixels"] = frames.permute(0, 3, 1, 2)  # channels first
+    with pytest.raises(ValueError, match=r"'pixels' must end with shape \(64, 64, \d+\)"):
+        policy(td.clone())
     env.close()

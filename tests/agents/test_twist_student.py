@@ -152,3 +152,61 @@ def test_negative_or_nan_weights_are_refused():
         for bad in (-1.0, float("nan"), float("inf")):
             with pytest.raises(ValueError, match=field):
                 TwistConfig(**{field: bad})
+
+
+def _updates_with_the_teachers_view_fixed(twist_config=None, readout=False):
+    """Two identical students updated on two batches that differ only in the privileged
+    state, while the teacher is made to see batch A's state in both: returns the two
+    updates' loss terms. Equal terms mean the state reaches the student's losses only
+    through the frozen teacher's latents (Eq. 3 and Eq. 4), as in TWIST."""
+    torch.manual_seed(0)
+    teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
+    if readout:
+        from simdist.modules import PixelEncoder, StateReadout
+        student = DreamerWorldModel.readout_student(
+            StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2]), 1, "tiny")
+    else:
+        student = DreamerWorldModel.student(action_dim=1, size="tiny")
+    base = TwistStudent(teacher, student, twist_config or TwistConfig(horizon=3,
+                                                                      max_imagination_starts=8))
+    batch = TensorDict({"action": torch.rand(2, 6, 1) * 2 - 1,
+                        "is_init": torch.zeros(2, 6, 1, dtype=torch.bool),
+                        "next": {"state": torch.randn(2, 6, 5),
+                                 "pixels": torch.randint(0, 255, (2, 6, 64, 64, 3),
+                                                         dtype=torch.uint8),
+                                 "reward": torch.rand(2, 6, 1)}}, [2, 6])
+    if readout:  # a readout student trains on positions: D's recorded values, as the recipe
+        batch["next", "pixels"] = batch["next", "state"][..., :3].clone()
+    other = batch.clone()
+    other["next", "state"] = torch.randn(2, 6, 5) * 3  # another privileged state
+    if readout:
+        other["next", "pixels"] = other["next", "state"][..., :3].clone()
+    encoder = teacher.world_model.encoder
+    seen_by_teacher = encoder(batch["next", "state"]).detach()
+    real_forward = encoder.forward
+    encoder.forward = lambda state: (seen_by_teacher if state.shape == batch["next", "state"].shape
+                                     else real_forward(state))
+    terms = []
+    for data in (batch, other):
+        twist = copy.deepcopy(base)
+        torch.manual_seed(1)
+        terms.append(twist.update(data.clone()))
+    encoder.forward = real_forward
+    return terms
+
+
+def test_no_state_target_reaches_twists_student_but_through_the_teacher():
+    """The faithful student (TWIST: CNN, Eq. 3 + Eq. 4): the privileged state changes
+    nothing in its losses once the teacher's latents are fixed. The same check catches a
+    state target: a state-regression term, or a readout student's exact positions."""
+    a, b = _updates_with_the_teachers_view_fixed()
+    assert set(a) == set(b) and "loss_state" not in a
+    for key in a:
+        assert a[key] == b[key], key
+    # the check can fail: a state-regression term (not TWIST) moves with the state...
+    a, b = _updates_with_the_teachers_view_fixed(TwistConfig(horizon=3, state_weight=1.0,
+                                                             max_imagination_starts=8))
+    assert a["loss_state"] != b["loss_state"]
+    # ...and so does a readout student trained on positions read off the state
+    a, b = _updates_with_the_teachers_view_fixed(readout=True)
+    assert any(a[k] != b[k] for k in a if k.startswith("loss_"))

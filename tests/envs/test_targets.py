@@ -1,3 +1,4 @@
+import json
 import pytest
 
 from simdist.envs import TARGETS, DynamicsRandomisation, TargetDomain, describe_ranges, get_target
@@ -22,8 +23,32 @@ def test_unknown_target_lists_presets():
 def test_invalid_target_values():
     with pytest.raises(ValueError, match="slope_deg"):
         TargetDomain(slope_deg=45)
-    with pytest.raises(ValueError, match="friction must be finite and > 0"):
+    with pytest.raises(ValueError, match=r"TargetDomain.friction must lie in \[0.01, 10.0\]"):
         TargetDomain(friction=-0.1)
+
+
+@pytest.mark.parametrize("fields,error,message", [
+    ({"friction": True}, TypeError, "TargetDomain.friction must be a number, got True"),
+    ({"friction": "0.4"}, TypeError, "TargetDomain.friction must be a number, got '0.4'"),
+    ({"name": 5}, TypeError, "TargetDomain.name must be a non-empty string"),
+    ({"name": ""}, TypeError, "TargetDomain.name must be a non-empty string"),
+    ({"friction": 1e308}, ValueError, "TargetDomain.friction must lie in"),
+    ({"payload_kg": 1e30}, ValueError, "TargetDomain.payload_kg must lie in"),
+    ({"action_latency": 100000}, ValueError, "TargetDomain.action_latency must lie in"),
+    ({"action_latency": 1.5}, TypeError, "TargetDomain.action_latency must be an integer"),
+    ({"action_latency": False}, TypeError, "TargetDomain.action_latency must be an integer"),
+    ({"motor_strength": float("nan")}, ValueError, "TargetDomain.motor_strength must lie in"),
+    ({"contact_softness": 0.0}, ValueError, "TargetDomain.contact_softness must lie in"),
+])
+def test_a_target_with_a_wrong_type_or_an_unphysical_value_is_refused_by_field(
+        fields, error, message):
+    """Exact types (no bools or strings for numbers) and physical bounds, checked when the
+    target is built: before any environment, folder or stage (the recipes build it while
+    parsing their flags)."""
+    with pytest.raises(error, match=message):
+        get_target(fields)
+    with pytest.raises(error, match=message):
+        get_target(json.dumps(fields))
 
 
 def test_describe_ranges_shows_every_preset():
@@ -41,7 +66,7 @@ def test_a_dict_of_fields_is_a_target():
     assert env.target == TargetDomain(name="icy", friction=0.3)
     with pytest.raises(ValueError, match="unknown TargetDomain field\\(s\\) \\['frcition'\\]"):
         get_target({"frcition": 0.3})
-    with pytest.raises(ValueError, match="friction must be finite and > 0"):
+    with pytest.raises(ValueError, match="TargetDomain.friction must lie in"):
         get_target({"friction": -1.0})
     with pytest.raises(TypeError, match="preset name, a dict"):
         get_target(0.3)

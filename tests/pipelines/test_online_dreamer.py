@@ -46,7 +46,7 @@ def test_snapshots_keep_the_agent_after_each_of_the_last_episodes(tmp_path):
     paths = snapshot_paths(tmp_path)
     assert [p.name for p in paths] == ["00001.pt", "00002.pt"]  # of episodes 0, 1, 2
     first, last = (load_checkpoint(p)["weights"]["actor"] for p in paths)
-    final = load_checkpoint(tmp_path / "agent.pt")["agent"]["actor"]
+    final = load_checkpoint(tmp_path / "training.pt")["agent"]["actor"]
     assert all(torch.equal(last[k], final[k]) for k in final)  # the last is the final agent
     assert not all(torch.equal(first[k], final[k]) for k in final)  # the one before is not
 

@@ -19,6 +19,10 @@ METHODS = ["Oracle (state teacher)", "TWIST (student)", "TWIST w/o imagined alig
            "TWIST w/o action noise", "Dreamer from pixels + DR", "Dreamer from pixels, no DR",
            "Dreamer State Recon. + DR", "Asymmetric SAC + DR", "zero action (reference)",
            "random actions (reference)"]
+READOUT_ROWS = ["Readout student (privileged state regression)",
+                "Readout student w/o imagined alignment", "Readout student w/o action noise"]
+# with --student-readout auto on cartpole-balance: the students' rows under their own name
+READOUT_METHODS = [METHODS[0], *READOUT_ROWS, *METHODS[4:]]
 
 
 def _run(*args, timeout=300):
@@ -39,15 +43,16 @@ def _benchmark(name: str, *args, capsys):
 
 
 def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
-    # D with its images: the diagnosis below reads them (the default renders none here)
+    # D with its images: the diagnosis below reads them (the default renders none here);
+    # the readout student (not TWIST; the default is TWIST's CNN student, tested below)
     proc = _run("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 2,
-                "--teacher-pixels", "always")
+                "--teacher-pixels", "always", "--student-readout", "auto")
     assert proc.returncode == 0, proc.stderr
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["machine"]["logical_cpus"] >= 1  # what its timings were measured on
     task = results["results"]["cartpole-balance"]
-    assert list(task) == METHODS
-    for name in METHODS:
+    assert list(task) == READOUT_METHODS
+    for name in READOUT_METHODS:
         # 2 held-out evaluation episodes of 10 agent steps (action repeat 2: <= 20 reward)
         assert len(task[name]["returns"]) == 2
         assert all(0 <= r <= 20 for r in task[name]["returns"])
@@ -71,9 +76,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     ablation = torch.load(tmp_path / "stages" / "cartpole-balance_s0_no_imagined" /
                           "student.pt", weights_only=True)
     assert "loss_imagined" not in ablation["history"][-1]
-    assert "% of Oracle" in proc.stdout and "TWIST (student)" in proc.stdout
+    assert "% of Oracle" in proc.stdout and READOUT_ROWS[0] in proc.stdout
+    assert "TWIST (student)" not in proc.stdout  # never under TWIST's name
     # cartpole-balance has a committed readout: the student and its ablations see through it
-    for name in ("TWIST (student)", "TWIST w/o imagined alignment", "TWIST w/o action noise"):
+    for name in READOUT_ROWS:
         assert run[name]["student"] == "readout" and run[name]["updates"] == 3
         assert run[name]["readout"].endswith("twist_readout/cartpole-balance.pt")
         # candidates (all of D / its domain runs / all of D from the last snapshot, here
@@ -89,7 +95,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
     every = json.loads((stages / "cartpole-balance_s0_twist_all.json").read_text())["result"]
     assert every["train_steps"] == 40  # exact positions: every step of D, domain or not
     assert len(every["validation"]["returns"]) == results["config"]["student_select_episodes"]
-    chosen = run["TWIST (student)"]["chosen"]
+    chosen = run[READOUT_ROWS[0]]["chosen"]
     assert (stages / "cartpole-balance_s0_twist" / "student.pt").read_bytes() == (
         stages / f"cartpole-balance_s0_twist_{chosen}" / "student.pt").read_bytes()
     assert load_agent(tmp_path / "stages" / "cartpole-balance_s0_twist" /
@@ -124,19 +130,21 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, capsys):
 
     # reruns that do no work run in this process (tests/in_process.py)
     again = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1,
-                      "--teacher-pixels", "always", capsys=capsys)
+                      "--teacher-pixels", "always", "--student-readout", "auto", capsys=capsys)
     assert again.returncode == 0, again.stderr
     # 10 stages per task-seed, 3 candidates for each of the 3 students, and the recording
     assert again.stdout.count("already done") == 20
     refused = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--teacher-pixels",
-                        "always", "--eval-episodes", 3, capsys=capsys)
+                        "always", "--student-readout", "auto", "--eval-episodes", 3,
+                        capsys=capsys)
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert refused.stderr.startswith("twist_dmc.py: error: ")
     assert "holds results of a different config (changed: ['eval_episodes'])" in refused.stderr
     # a baseline's own setting bars a folder whose baselines ran (not one without them:
     # tests/test_results_records.py)
     refused = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--teacher-pixels",
-                        "always", "--no-state-recon-standardise", capsys=capsys)
+                        "always", "--student-readout", "auto", "--no-state-recon-standardise",
+                        capsys=capsys)
     assert "(changed: ['state_recon_standardise'])" in refused.stderr
 
     # the gap-diagnosis script runs on a finished recipe output
@@ -351,15 +359,17 @@ def test_teacher_stage_renders_d_only_when_a_student_reads_it(tmp_path):
     recipe = _recipe_module()
     task = "cartpole-balance"
     assert recipe.Config().teacher_pixels == "auto"
-    assert not recipe.records_images(recipe.Config(), task)  # exact positions: no images
-    assert recipe.records_images(recipe.Config(student_readout="none"), task)  # CNN student
-    assert recipe.records_images(recipe.Config(readout_student_inputs="readings",
+    readout = recipe.Config(student_readout="auto")  # a readout student on exact positions
+    assert not recipe.records_images(readout, task)  # exact positions: no images
+    assert recipe.records_images(recipe.Config(), task)  # the default: TWIST's CNN student
+    assert recipe.records_images(recipe.Config(student_readout="auto",
+                                               readout_student_inputs="readings",
                                                readout_student_states=["domain"],
                                                student_last_teacher_states=[]), task)
-    assert recipe.records_images(recipe.Config(teacher_pixels="always"), task)
+    assert recipe.records_images(dataclasses.replace(readout, teacher_pixels="always"), task)
     with pytest.raises(ConfigError, match="teacher_pixels"):
         recipe.Config(teacher_pixels="never")
-    tiny = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"],
+    tiny = dataclasses.replace(readout, **recipe.PRESETS["tiny"],
                                output_dir=str(tmp_path), jobs=1)
     without = recipe.teacher_stage(tiny, task, 0, tmp_path / "auto")
     with_images = recipe.teacher_stage(dataclasses.replace(tiny, teacher_pixels="always"),
@@ -393,10 +403,13 @@ def test_a_candidate_of_the_last_snapshot_deploys_with_that_snapshots_actor(tmp_
     recipe = _recipe_module()
     task = "cartpole-balance"
     assert recipe.Config().student_last_teacher_states == ["all"]
-    assert recipe.student_candidates(recipe.Config(), task) == ["all", "domain", "last_all"]
-    assert recipe.student_candidates(recipe.Config(readout_student_states=["domain"]),
+    readout = recipe.Config(student_readout="auto")
+    assert recipe.student_candidates(recipe.Config(), task) == []  # TWIST: no candidates
+    assert recipe.student_candidates(readout, task) == ["all", "domain", "last_all"]
+    assert recipe.student_candidates(recipe.Config(student_readout="auto",
+                                                   readout_student_states=["domain"]),
                                      task) == ["domain", "last_all"]
-    cfg = dataclasses.replace(recipe.Config(), **recipe.PRESETS["tiny"],
+    cfg = dataclasses.replace(readout, **recipe.PRESETS["tiny"],
                               output_dir=str(tmp_path), jobs=1)
     teacher = recipe.teacher_stage(cfg, task, 0, tmp_path / "teacher")
     first, last = (c["snapshot"] for c in teacher["selection"]["candidates"])
@@ -502,21 +515,21 @@ def test_teacher_budget_benchmark_resumes_and_reports_a_curve(tmp_path, capsys):
     assert [p["steps"] for p in curve] == [20, 40]
     assert 0 < curve[0]["updates"] < curve[1]["updates"]
     assert set(result["references"]["0"]) == {"zero", "uniform"}
-    assert (out / "cartpole-balance_s0" / "agent.pt").exists()
+    assert (out / "cartpole-balance_s0" / "training.pt").exists()
     # DreamerV3's return normalisation: its own run folder and result file
     run = _benchmark("twist_teacher_budget", "--preset", "tiny", "--steps", "20", "--chunk",
                      "20", "--out", out, "--return-normalisation", "percentile",
                      capsys=capsys)
     assert run.returncode == 0, run.stderr
     assert (out / "cartpole-balance_return_percentile.json").exists()
-    state = torch.load(out / "cartpole-balance_s0_return_percentile" / "agent.pt",
+    state = torch.load(out / "cartpole-balance_s0_return_percentile" / "training.pt",
                        weights_only=True)["agent"]  # the online run's training checkpoint
     assert int(state["return_scale"]["count"]) > 0
     # a teacher whose state target is standardised: its own folder, and the statistics
     run = _benchmark("twist_teacher_budget", "--preset", "tiny", "--steps", "20", "--chunk",
                      "20", "--out", out, "--standardise", capsys=capsys)
     assert run.returncode == 0, run.stderr
-    state = torch.load(out / "cartpole-balance_s0_standardised" / "agent.pt",
+    state = torch.load(out / "cartpole-balance_s0_standardised" / "training.pt",
                        weights_only=True)["agent"]
     assert int(state["reconstruction_standardiser"]["count"]) > 0
 
@@ -660,8 +673,14 @@ def test_students_picks_which_of_twist_and_its_ablations_run(tmp_path, capsys):
             "--no-record")
     proc = _run(*args, "--students", "twist")
     assert proc.returncode == 0, proc.stderr
-    task = json.loads((tmp_path / "results.json").read_text())["results"]["cartpole-balance"]
+    results = json.loads((tmp_path / "results.json").read_text())
+    task = results["results"]["cartpole-balance"]
     assert recipe.STUDENTS["twist"][0] in task
+    # the default student is TWIST's: a CNN trained by Eq. 3 and Eq. 4 alone, no readout,
+    # no candidates chosen on privileged state
+    twist = results["runs"]["cartpole-balance_s0"][recipe.TWIST]
+    assert twist["student"] == "cnn" and twist["readout"] is None and "chosen" not in twist
+    assert not list((tmp_path / "stages").glob("*_twist_*"))
     assert not any("w/o" in name for name in task)
     assert not list((tmp_path / "stages").glob("*no_noise*"))
     # a later run adds an ablation into the same folder: students pick rows, not figures
@@ -802,7 +821,8 @@ def test_student_readout_picks_the_committed_readout_only_where_it_fits(tmp_path
 
     recipe = _recipe_module()
     committed = recipe.READOUT_DIR / "cartpole-balance.pt"
-    cfg = recipe.Config()
+    assert recipe.readout_file(recipe.Config(), "cartpole-balance") is None  # TWIST's CNN
+    cfg = recipe.Config(student_readout="auto")
     assert recipe.readout_file(cfg, "cartpole-balance") == committed
     assert recipe.readout_file(cfg, "cheetah-run") is None  # no readout: the CNN student
     # fitted from the task's camera: a run from another camera gets the CNN student
@@ -874,9 +894,10 @@ def test_readout_student_states_config_and_selection():
     with pytest.raises(ConfigError, match="student_select_episodes"):
         recipe.Config(student_select_episodes=0)
     # one entry, or no readout (the CNN student): a single student, no candidate stages
-    assert recipe.student_candidates(recipe.Config(), "cartpole-balance") == [
-        "all", "domain", "last_all"]
-    assert recipe.student_candidates(recipe.Config(readout_student_states=["all"],
+    assert recipe.student_candidates(recipe.Config(student_readout="auto"),
+                                     "cartpole-balance") == ["all", "domain", "last_all"]
+    assert recipe.student_candidates(recipe.Config(student_readout="auto",
+                                                   readout_student_states=["all"],
                                                    student_last_teacher_states=[]),
                                      "cartpole-balance") == []
     for bad in (["everything"], ["all", "all"]):
@@ -923,11 +944,12 @@ def test_readout_student_inputs_readings_trains_on_the_readouts_readings_of_d(tm
         recipe.Config(readout_student_inputs="state")
     proc = _run_here("--preset", "tiny", "--output-dir", tmp_path, "--jobs", 1,
                      "--no-baselines", "--no-record", "--students", "twist",
+                     "--student-readout", "auto",
                      "--readout-student-inputs", "readings", "--readout-student-states",
                      "domain", "--student-last-teacher-states", "domain", capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     twist = json.loads((tmp_path / "results.json").read_text())["runs"]["cartpole-balance_s0"][
-        recipe.TWIST]
+        recipe.READOUT_STUDENTS["twist"]]
     assert twist["student"] == "readout" and len(twist["returns"]) == 2  # evaluated on pixels
 
 
@@ -1079,9 +1101,9 @@ def test_dreamer_latent_probe_reads_saved_and_training_checkpoints(tmp_path, cap
     cfg = recipe.Config(**recipe.PRESETS["tiny"])
     agent = DreamerAgent.for_pixels(1, cfg.pixel_dreamer())
     saved = agent.save(tmp_path / "dreamer_agent.pt")
-    save_atomic({"agent": agent.state_dict()}, tmp_path / "agent.pt")
+    save_atomic({"agent": agent.state_dict()}, tmp_path / "training.pt")
     for args in (("--agent", saved), ("--training", "--preset", "tiny", "--agent",
-                                      tmp_path / "agent.pt")):
+                                      tmp_path / "training.pt")):
         out = tmp_path / "probe.json"
         proc = _benchmark("dreamer_latent_probe", *args, "--episodes", 2, "--steps", 6,
                           "--horizon", 4, "--json", out, capsys=capsys)

@@ -28,6 +28,7 @@ from simdist.agents.dreamer import check_unit_box
 from simdist.experts.networks import make_critic
 from simdist.modules import PixelEncoder, RandomShift
 from simdist.modules.checks import check_finite
+from simdist.objectives.common import check_pixels
 from simdist.utils.device import module_device
 
 
@@ -345,6 +346,7 @@ class AsymmetricSACPolicy(TensorDictModuleBase):
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         mode = ExplorationType.RANDOM if self.explore else ExplorationType.DETERMINISTIC
         check_finite("pixels", td.get("pixels"))  # a NaN would become a NaN action, silently
+        check_pixels(type(self).__name__, "pixels", td.get("pixels"))  # uint8 or [-0.5, 0.5]
         actor_in = td if self.frames == 1 else self._stack(td)
         # images go to the actor's device and the action comes back to the env's
         home, device = td.get("pixels").device, module_device(self.loss)

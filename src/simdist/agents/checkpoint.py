@@ -79,6 +79,11 @@ def write_agent_checkpoint(path: str | os.PathLike, agent_class: str, config: di
     return Path(path)
 
 
+class NotAnAgentFileError(ValueError):
+    """A valid file that is not an agent file (e.g. a training checkpoint): nothing to
+    recover, only another file to load."""
+
+
 def incompatible(path: str | os.PathLike, why: str) -> CorruptCheckpointError:
     """The error for a readable file that is not a usable agent checkpoint."""
     return CorruptCheckpointError(f"agent checkpoint {str(path)!r} is corrupt or incompatible: "
@@ -98,10 +103,20 @@ def read_agent_checkpoint(path: str | os.PathLike, expected: str | None = None) 
         CorruptCheckpointError: naming the file: truncated or garbled, holds pickled
             objects, is not an agent checkpoint (e.g. a bare state dict), was written by a
             newer format version, or holds another agent class than ``expected``.
+        NotAnAgentFileError: the file is a training checkpoint (it names the agent file
+            to load instead).
     """
     ckpt = load_checkpoint(path, map_location="cpu")
     if not isinstance(ckpt, dict):
         raise incompatible(path, f"it holds a {type(ckpt).__name__}, not an agent's dict")
+    if ckpt.get("format") != FORMAT and "history" in ckpt:
+        # a valid file of another kind: say what it is, and never advise deleting it
+        raise NotAnAgentFileError(
+            f"{str(path)!r} is a training checkpoint (it resumes a training loop: keys "
+            f"{sorted(map(str, ckpt))[:6]}), not an agent file. Load the agent file its stage "
+            "saved beside it (agent.pt after pretraining, *_agent.pt elsewhere: "
+            "teacher_agent.pt, student_agent.pt, dreamer_agent.pt, sac_agent.pt, "
+            "simdist_agent.pt)")
     if ckpt.get("format") != FORMAT:
         raise incompatible(path, f"it is not a self-describing agent file (no 'format': "
                            f"{FORMAT!r}; top-level keys {sorted(map(str, ckpt))[:8]}): a bare "

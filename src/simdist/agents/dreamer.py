@@ -27,6 +27,7 @@ from simdist.modules import Actor, DreamerWorldModel, ScalarHead
 from simdist.modules.heads import StateDecoder
 from simdist.modules.encoders import PixelEncoder
 from simdist.modules.checks import check_finite
+from simdist.objectives.common import check_pixels
 from simdist.modules.rssm import RSSMState
 from simdist.objectives import DreamerActorCriticLoss, DreamerWorldModelLoss, ReturnScale
 from simdist.objectives.dreamer import ACTOR_GRADIENTS
@@ -148,6 +149,8 @@ class DreamerPolicy(TensorDictModuleBase):
         rssm = self.world_model.rssm
         obs = td.get(self.obs_key)
         check_finite(self.obs_key, obs)  # a NaN would become a NaN action, silently
+        if self.obs_event_dims == 3:  # images: uint8, or floats already in [-0.5, 0.5]
+            check_pixels(type(self).__name__, self.obs_key, obs)
         # Inputs go to the model's device and outputs come back to the env's, so a model
         # on a GPU acts in a CPU env (the recurrent state rides in the env's TensorDict).
         home, device = obs.device, module_device(self.world_model)

@@ -12,12 +12,21 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 from pathlib import Path
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
+
+
+#: field -> (lowest, highest) value a target domain may take: physically meaningful shifts
+#: the simulator can step (a friction of 1e308 or a 1e30 kg payload fails inside MuJoCo;
+#: a latency of 100000 steps would hold that many actions per world)
+TARGET_BOUNDS = {"friction": (0.01, 10.0), "contact_softness": (0.05, 50.0),
+                 "motor_strength": (0.05, 5.0), "payload_kg": (0.0, 200.0),
+                 "action_latency": (0, 50), "slope_deg": (-30.0, 30.0)}
 
 
 @dataclass(frozen=True)
@@ -33,6 +42,12 @@ class TargetDomain:
         action_latency: extra control steps of action delay.
         slope_deg: ground incline along the direction of travel (quadruped tasks only).
         visual: visual randomisation in force in this domain, or ``None``.
+
+    Every number must be a real number (an integer for ``action_latency``; never a bool or
+    a string) inside its physical bounds (:data:`TARGET_BOUNDS`): friction 0.01-10,
+    contact softness 0.05-50, motor strength 0.05-5, payload 0-200 kg, latency 0-50
+    steps, slope -30 to 30 degrees. A value outside them is refused here, naming the
+    field, before any environment is built.
 
     Examples:
         >>> target = TargetDomain(name="icy", friction=0.2)
@@ -52,9 +67,21 @@ class TargetDomain:
     visual: VisualRandomisation | None = None
 
     def __post_init__(self):
-        self.dynamics()  # validates the dynamics fields with their own messages
-        if not (math.isfinite(self.slope_deg) and -30.0 <= self.slope_deg <= 30.0):
-            raise ValueError(f"slope_deg must lie in [-30, 30], got {self.slope_deg}")
+        if not isinstance(self.name, str) or not self.name:
+            raise TypeError(f"TargetDomain.name must be a non-empty string, got {self.name!r}")
+        for field, (low, high) in TARGET_BOUNDS.items():
+            value = getattr(self, field)
+            kind = numbers.Integral if field == "action_latency" else numbers.Real
+            if isinstance(value, bool) or not isinstance(value, kind):
+                raise TypeError(f"TargetDomain.{field} must be "
+                                f"{'an integer' if kind is numbers.Integral else 'a number'}, "
+                                f"got {value!r} ({type(value).__name__})")
+            if not (math.isfinite(value) and low <= value <= high):
+                raise ValueError(f"TargetDomain.{field} must lie in [{low}, {high}], got {value}")
+        if self.visual is not None and not isinstance(self.visual, VisualRandomisation):
+            raise TypeError(f"TargetDomain.visual must be a VisualRandomisation or None, got "
+                            f"{type(self.visual).__name__}")
+        self.dynamics()  # the dynamics fields' own checks
 
     def dynamics(self) -> DynamicsParams:
         """The dynamics part of the shift."""

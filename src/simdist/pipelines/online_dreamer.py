@@ -125,7 +125,11 @@ def train_dreamer_online(agent, env, config: OnlineConfig, stage_dir: str | Path
         raise ValueError(f"snapshots must be >= 0, got {snapshots}")
     stage_dir = Path(stage_dir)
     (stage_dir / "episodes").mkdir(parents=True, exist_ok=True)
-    checkpoint = stage_dir / "agent.pt"
+    # "training.pt", like every resumable loop's; a folder from before the rename holds the
+    # same checkpoint as "agent.pt" (the name agent files use), and resumes from it
+    checkpoint = stage_dir / "training.pt"
+    if not checkpoint.exists() and (stage_dir / "agent.pt").exists():
+        checkpoint = stage_dir / "agent.pt"
     trained, history, returns = 0, [], []
     if checkpoint.exists():
         saved = load_checkpoint(checkpoint)

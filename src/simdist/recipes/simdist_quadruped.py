@@ -42,11 +42,8 @@ from simdist.experts import resolve_expert
 from simdist.pipelines.experiment_log import make_logger, plot_curves
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.pipelines.simdist.config import PRESETS, SIMDIST, Config
-from simdist.pipelines.simdist.evaluation import (
-    collect_results,
-    expert_zero_shot_stage,
-    zero_shot_job,
-)
+from simdist.pipelines.simdist.evaluation import (collect_results, expert_zero_shot_stage,
+                                                  zero_shot_job)
 from simdist.pipelines.simdist.expert_data import dataset_stage, expert_stage
 from simdist.pipelines.simdist.jobs import stage_jobs
 from simdist.pipelines.simdist.pretraining import pretrain_stage

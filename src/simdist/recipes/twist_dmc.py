@@ -8,13 +8,13 @@ finished stages and a killed stage resumes from its last checkpoint):
 2. ``oracle``: the teacher itself, evaluated (the upper bound); ``references``: zero and
    uniform random actions on the same seeds, what a return is worth on the task (doing
    nothing scores 750 on cartpole-balance, where the pole swings back past upright).
-3. ``twist`` and its ablations (``no_imagined``, ``no_noise``): an image RSSM trained
-   with the teacher frozen on slices of ``D`` with latent distillation (Eq. 3) plus
-   imagined-rollout alignment (Eq. 4); deployed as pixels -> student latent -> the
-   teacher's actor. Where the task has a committed readout (cartpole-balance), all three
-   see through it: a frozen CNN fitted supervised to read the positions from one
-   randomised image, before a state encoder and an RSSM started as the teacher's
-   (``student_readout``; docs/methods.md, section 2.7); elsewhere a CNN student.
+3. ``twist`` and its ablations (``no_imagined``, ``no_noise``): an image RSSM with a CNN
+   encoder, trained with the teacher frozen on slices of ``D`` by latent distillation
+   (Eq. 3) plus imagined-rollout alignment (Eq. 4) alone; deployed as pixels -> student
+   latent -> the teacher's actor. ``--student-readout auto`` trains the readout student
+   instead where a task has a committed readout (cartpole-balance): a frozen CNN fitted by
+   privileged state regression, another method than TWIST, reported under its own name
+   (docs/methods.md, section 2.7).
 4. ``dreamer_dr`` / ``dreamer_no_dr``: Dreamer from pixels, with and without visual DR,
    with the same environment-step budget as the teacher (at the CPU default with fewer
    updates: a pixel update costs ~4x a state update; ``paper`` gives all the same ratio).
@@ -47,24 +47,12 @@ from pathlib import Path
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.pipelines.experiment_log import plot_curves
-from simdist.pipelines.twist.chains import (
-    _stage,
-    candidate_chain,
-    pixel_chain,
-    sac_chain,
-    stage_runner,
-    student_candidates,
-    student_chain,
-    teacher_chain,
-)
-from simdist.pipelines.twist.config import (
-    ASYMMETRIC_SAC,
-    PIXEL_DREAMERS,
-    PRESETS,
-    REFERENCES,
-    STUDENTS,
-    Config,
-)
+from simdist.pipelines.twist.chains import (_stage, candidate_chain, pixel_chain, sac_chain,
+                                            stage_runner, student_candidates, student_chain,
+                                            teacher_chain)
+from simdist.pipelines.twist.config import (ASYMMETRIC_SAC, PIXEL_DREAMERS, PRESETS, REFERENCES,
+                                            Config)
+from simdist.pipelines.twist.readout import student_row
 from simdist.pipelines.twist.recording import recording_stage
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
 from simdist.utils import run_jobs, write_json_atomic
@@ -91,7 +79,7 @@ def main(argv=None):
                 after.append((i,))
             after.append(tuple(range(first, len(chains))) or (i,))
             chains.append((student_chain, (cfg, task, seed, suffix)))
-    stages = {suffix: STUDENTS[suffix][0] for suffix in cfg.students}  # stage -> table row
+    stages = {}  # stage suffix -> table row (a student's depends on the task: readout_file)
     if cfg.baselines:
         chains += [(pixel_chain, (cfg, task, seed, suffix)) for task in cfg.tasks
                    for seed in cfg.seeds for suffix in PIXEL_DREAMERS]
@@ -111,6 +99,8 @@ def main(argv=None):
             key = f"{task}_s{seed}"
             teacher = runner.result(f"{key}_teacher")
             runs = {ORACLE: runner.result(f"{key}_oracle")}
+            for suffix in cfg.students:
+                runs[student_row(cfg, task, suffix)] = runner.result(f"{key}_{suffix}")
             for suffix, name in stages.items():
                 runs[name] = runner.result(f"{key}_{suffix}")
             references = runner.result(f"{key}_references")

@@ -1,4 +1,5 @@
-"""Building, saving and loading the pipeline's world models (one model or an ensemble of members)."""
+"""Building, saving and loading the pipeline's world models (one model, or an ensemble of
+members)."""
 
 from __future__ import annotations
 

@@ -13,14 +13,8 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.data import CoTrainingSlices, load_dataset
 from simdist.data.prioritised_slices import PrioritisedSlices, prioritised_update
 from simdist.experts import Expert
-from simdist.pipelines import (
-    OfflineSAC,
-    OfflineSACConfig,
-    as_slices,
-    mean_metrics,
-    stage_seed,
-    train_resumable,
-)
+from simdist.pipelines import (OfflineSAC, OfflineSACConfig, as_slices, mean_metrics, stage_seed,
+                               train_resumable)
 from simdist.pipelines.simdist.collection import collect_round_data
 from simdist.pipelines.simdist.config import FINETUNE_KEYS, STEPS_PER_MINUTE, Config
 from simdist.pipelines.simdist.evaluation import evaluate, evaluate_planner

@@ -21,40 +21,38 @@ Examples:
     (['cartpole-balance'], ['twist', 'no_imagined', 'no_noise'])
 """
 
-from simdist.pipelines.twist.config import (TWIST, STUDENTS, ASYMMETRIC_SAC, REFERENCES,
-                                            PIXEL_DREAMERS, Config, PRESETS,
-                                            TRAIN_CAMERA_JITTER, saved_config, training_visual,
-                                            state_dim, twist_config, READOUT_DIR, SAC_FIELDS,
-                                            BASELINE_FIELDS)
-from simdist.pipelines.twist.teacher import (saved_meta, teacher_agent, records_images,
-                                             teacher_stage, select_teacher, load_teacher,
-                                             evaluate, last_snapshot, snapshot_teacher,
-                                             references_stage)
-from simdist.pipelines.twist.students import (new_student, build_student, train_student,
-                                              deploy_student, student_stage)
-from simdist.pipelines.twist.readout import (readout_file, new_readout_student, mask_runs,
-                                             with_readings, recorded_images, with_positions,
-                                             readout_positions, readout_training_runs,
-                                             ExactPositions)
-from simdist.pipelines.twist.selection import (validate_student, candidate_student_stage,
-                                               select_student, selected_student_stage)
-from simdist.pipelines.twist.baselines import (pixel_dreamer_stage, asymmetric_sac_stage)
-from simdist.pipelines.twist.recording import (recording_stage)
-from simdist.pipelines.twist.chains import (stage_runner, teacher_chain, student_candidates,
-                                            candidate_chain, student_chain, pixel_chain,
-                                            sac_chain)
+from simdist.pipelines.twist.config import (ASYMMETRIC_SAC, BASELINE_FIELDS, PIXEL_DREAMERS,
+                                            PRESETS, READOUT_DIR, READOUT_STUDENTS, REFERENCES,
+                                            SAC_FIELDS, STUDENTS, TRAIN_CAMERA_JITTER, TWIST,
+                                            Config, saved_config, state_dim, training_visual,
+                                            twist_config)
+from simdist.pipelines.twist.teacher import (evaluate, last_snapshot, load_teacher, records_images,
+                                             references_stage, saved_meta, select_teacher,
+                                             snapshot_teacher, teacher_agent, teacher_stage)
+from simdist.pipelines.twist.students import (build_student, deploy_student, new_student,
+                                              student_stage, train_student)
+from simdist.pipelines.twist.readout import (ExactPositions, mask_runs, new_readout_student,
+                                             readout_file, readout_positions, readout_training_runs,
+                                             recorded_images, student_row, with_positions,
+                                             with_readings)
+from simdist.pipelines.twist.selection import (candidate_student_stage, select_student,
+                                               selected_student_stage, validate_student)
+from simdist.pipelines.twist.baselines import asymmetric_sac_stage, pixel_dreamer_stage
+from simdist.pipelines.twist.recording import recording_stage
+from simdist.pipelines.twist.chains import (candidate_chain, pixel_chain, sac_chain, stage_runner,
+                                            student_candidates, student_chain, teacher_chain)
 
 __all__ = [
-    "TWIST", "STUDENTS", "ASYMMETRIC_SAC", "REFERENCES", "PIXEL_DREAMERS", "Config",
-    "PRESETS", "TRAIN_CAMERA_JITTER", "saved_config", "training_visual", "state_dim",
-    "twist_config", "READOUT_DIR", "SAC_FIELDS", "BASELINE_FIELDS", "saved_meta",
-    "teacher_agent", "records_images", "teacher_stage", "select_teacher", "load_teacher",
-    "evaluate", "last_snapshot", "snapshot_teacher", "references_stage", "new_student",
-    "build_student", "train_student", "deploy_student", "student_stage", "readout_file",
-    "new_readout_student", "mask_runs", "with_readings", "recorded_images",
-    "with_positions", "readout_positions", "readout_training_runs", "ExactPositions",
-    "validate_student", "candidate_student_stage", "select_student",
-    "selected_student_stage", "pixel_dreamer_stage", "asymmetric_sac_stage",
-    "recording_stage", "stage_runner", "teacher_chain", "student_candidates",
-    "candidate_chain", "student_chain", "pixel_chain", "sac_chain",
+    "ASYMMETRIC_SAC", "BASELINE_FIELDS", "PIXEL_DREAMERS", "PRESETS", "READOUT_DIR",
+    "READOUT_STUDENTS", "REFERENCES", "SAC_FIELDS", "STUDENTS", "TRAIN_CAMERA_JITTER", "TWIST",
+    "Config", "saved_config", "state_dim", "training_visual", "twist_config", "evaluate",
+    "last_snapshot", "load_teacher", "records_images", "references_stage", "saved_meta",
+    "select_teacher", "snapshot_teacher", "teacher_agent", "teacher_stage", "build_student",
+    "deploy_student", "new_student", "student_stage", "train_student", "ExactPositions",
+    "mask_runs", "new_readout_student", "readout_file", "readout_positions",
+    "readout_training_runs", "recorded_images", "student_row", "with_positions",
+    "with_readings", "candidate_student_stage", "select_student", "selected_student_stage",
+    "validate_student", "asymmetric_sac_stage", "pixel_dreamer_stage", "recording_stage",
+    "candidate_chain", "pixel_chain", "sac_chain", "stage_runner", "student_candidates",
+    "student_chain", "teacher_chain",
 ]

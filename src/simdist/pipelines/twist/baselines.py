@@ -12,13 +12,8 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.agents import AsymmetricSACAgent, AsymmetricSACConfig, DreamerAgent
 from simdist.envs import VisualRandomisation
 from simdist.modules import RSSM_SIZES
-from simdist.pipelines import (
-    control_env,
-    dreamer_keys,
-    mean_metrics,
-    stage_seed,
-    train_dreamer_online,
-)
+from simdist.pipelines import (control_env, dreamer_keys, mean_metrics, stage_seed,
+                               train_dreamer_online)
 from simdist.pipelines.experiment_log import make_logger
 from simdist.pipelines.twist.config import Config, state_dim
 from simdist.pipelines.twist.teacher import evaluate, saved_meta
@@ -76,6 +71,6 @@ def asymmetric_sac_stage(cfg: Config, task: str, seed: int, stage_dir: Path,
         result["own_scene"] = evaluate(cfg, task, seed, policy, agent.make_primer(),
                                        pixels=True, own_scene=True)
     return {**result, "agent": str(stage_dir / "sac_agent.pt"),
-            "checkpoint": str(stage_dir / "agent.pt"),
+            "checkpoint": str(stage_dir / "training.pt"),
             "episode_returns": out["episode_returns"], "updates": out["updates"],
             "last": mean_metrics(out["history"])}

@@ -6,13 +6,8 @@ from __future__ import annotations
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.pipelines.twist.baselines import asymmetric_sac_stage, pixel_dreamer_stage
-from simdist.pipelines.twist.config import (
-    ASYMMETRIC_SAC,
-    BASELINE_FIELDS,
-    PIXEL_DREAMERS,
-    STUDENTS,
-    Config,
-)
+from simdist.pipelines.twist.config import (ASYMMETRIC_SAC, BASELINE_FIELDS, PIXEL_DREAMERS,
+                                            STUDENTS, Config)
 from simdist.pipelines.twist.readout import readout_file
 from simdist.pipelines.twist.selection import candidate_student_stage, selected_student_stage
 from simdist.pipelines.twist.students import student_stage

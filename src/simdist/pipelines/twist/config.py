@@ -25,6 +25,11 @@ TWIST = "TWIST (student)"
 STUDENTS = {"twist": (TWIST, {}),
             "no_imagined": ("TWIST w/o imagined alignment", {"imagined": False}),
             "no_noise": ("TWIST w/o action noise", {"action_noise_std": 0.0})}
+# the same stages' table names where the student sees through a readout (privileged state
+# regression): another method than TWIST, so never under TWIST's name
+READOUT_STUDENTS = {"twist": "Readout student (privileged state regression)",
+                    "no_imagined": "Readout student w/o imagined alignment",
+                    "no_noise": "Readout student w/o action noise"}
 ASYMMETRIC_SAC = ("asymmetric_sac", "Asymmetric SAC + DR")  # (stage suffix, table name)
 # ReferencePolicy kind -> table name: blind policies that say what a return is worth
 REFERENCES = {"zero": "zero action (reference)", "uniform": "random actions (reference)"}
@@ -107,9 +112,9 @@ class Config:
 
     # -- readout student (privileged state regression; not the paper's TWIST)
 
-    # the student's eyes: "auto", the task's committed readout if it has one for the
-    # camera; "none", the CNN student; or the path of a readout file
-    student_readout: str = "auto"
+    # the student's eyes: "none", TWIST's CNN student (Eq. 3 + Eq. 4 only); "auto", the
+    # readout student where the task has a committed readout for the camera; or a readout file
+    student_readout: str = field(default="none", metadata={ABSENT_MEANS: "auto"})
     readout_student_updates: int = 1800  # readout student: distillation updates
     readout_student_lr: float = 1e-3  # readout student: learning rate
     readout_student_slices: int = 16  # readout student: slices per update

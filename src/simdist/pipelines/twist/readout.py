@@ -15,7 +15,8 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.agents import DreamerAgent, TwistStudent
 from simdist.agents.dreamer import DreamerPolicy
 from simdist.modules import DreamerWorldModel, ReadingNoise, StateReadout
-from simdist.pipelines.twist.config import READOUT_DIR, Config, twist_config
+from simdist.pipelines.twist.config import (READOUT_DIR, READOUT_STUDENTS, STUDENTS, Config,
+                                           twist_config)
 
 
 def readout_file(cfg: Config, task: str) -> Path | None:
@@ -36,6 +37,21 @@ def readout_file(cfg: Config, task: str) -> Path | None:
                          f"camera {meta.get('camera_id')}; this run is {task!r}, camera "
                          f"{cfg.camera_id}")
     return path
+
+
+def student_row(cfg: Config, task: str, suffix: str) -> str:
+    """The table name of student stage ``suffix`` of ``task``: TWIST's (or its ablation's)
+    for the CNN student, the readout student's where it sees through a readout.
+
+    Examples:
+        >>> student_row(Config(), "cartpole-balance", "twist")
+        'TWIST (student)'
+        >>> student_row(Config(student_readout="auto"), "cartpole-balance", "twist")
+        'Readout student (privileged state regression)'
+    """
+    if readout_file(cfg, task) is None:
+        return STUDENTS[suffix][0]
+    return READOUT_STUDENTS[suffix]
 
 
 def new_readout_student(cfg: Config, task: str, teacher: DreamerAgent, readout: StateReadout,
@@ -130,6 +146,7 @@ class ExactPositions(TensorDictModuleBase):
 
     Examples:
         >>> from tensordict import TensorDict
+        >>> from simdist.agents import DreamerConfig
         >>> from simdist.modules import PixelEncoder
         >>> teacher = DreamerAgent.for_state(5, 1, DreamerConfig(size="tiny"))
         >>> readout = StateReadout(PixelEncoder(4), state_dim=5, dims=[0, 1, 2])

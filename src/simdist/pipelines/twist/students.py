@@ -11,13 +11,8 @@ import torch
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.agents import DreamerAgent, TwistStudent
 from simdist.modules import DreamerWorldModel, ReadoutEncoder, StateReadout
-from simdist.pipelines import (
-    EpisodeReplay,
-    load_episodes,
-    mean_metrics,
-    stage_seed,
-    train_resumable,
-)
+from simdist.pipelines import (EpisodeReplay, load_episodes, mean_metrics, stage_seed,
+                               train_resumable)
 from simdist.pipelines.experiment_log import make_logger
 from simdist.pipelines.twist.config import Config, twist_config
 from simdist.pipelines.twist.readout import new_readout_student, readout_file, readout_training_runs

@@ -13,16 +13,8 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.agents import DreamerAgent
 from simdist.agents.checkpoint import read_agent_checkpoint
 from simdist.envs import VisualRandomisation
-from simdist.pipelines import (
-    ReferencePolicy,
-    control_env,
-    dreamer_keys,
-    evaluate_returns,
-    mean_metrics,
-    snapshot_paths,
-    stage_seed,
-    train_dreamer_online,
-)
+from simdist.pipelines import (ReferencePolicy, control_env, dreamer_keys, evaluate_returns,
+                               mean_metrics, snapshot_paths, stage_seed, train_dreamer_online)
 from simdist.pipelines.experiment_log import make_logger
 from simdist.pipelines.twist.config import REFERENCES, Config, state_dim, training_visual
 from simdist.pipelines.twist.readout import readout_file
@@ -72,10 +64,10 @@ def teacher_stage(cfg: Config, task: str, seed: int, stage_dir: Path) -> dict:
                                    snapshot_paths(stage_dir)[-cfg.teacher_snapshots:])
         agent.load_weights(load_checkpoint(selection["chosen"])["weights"], selection["chosen"])
     # the deployed teacher (the chosen snapshot, or the last weights), self-describing: what
-    # the Oracle, the students and recipes/evaluate.py load (agent.pt is the training
+    # the Oracle, the students and recipes/evaluate.py load (training.pt is the training
     # checkpoint, which goes on from the last weights)
     agent.save(stage_dir / "teacher_agent.pt", optimisers=False, meta=saved_meta(cfg, task, seed))
-    return {"checkpoint": str(stage_dir / "agent.pt"), "data": str(stage_dir),
+    return {"checkpoint": str(stage_dir / "training.pt"), "data": str(stage_dir),
             "agent": str(stage_dir / "teacher_agent.pt"), "selection": selection,
             "images": images,
             "episode_returns": out["episode_returns"], "updates": out["updates"],
