@@ -70,3 +70,24 @@ def test_shims_run_the_packaged_recipe(tmp_path):
                           cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "--init-from" in proc.stdout
+
+
+@pytest.mark.parametrize("script,flags,message", [
+    ("train_expert.py", ["--frames", "0"], "frames: must be > 0"),
+    ("train_expert.py", ["--task", "moon"], "task: unknown task 'moon'"),
+    ("train_expert.py", ["--target", '{"friction": true}'], "target: TargetDomain.friction"),
+    ("train_expert.py", ["--init-from", "none.pt"], "init_from: no expert checkpoint"),
+    ("generate_dataset.py", ["--episodes", "0"], "episodes: must be > 0"),
+    ("generate_dataset.py", ["--backend", "spark"], "backend: must be 'local' or 'ray'"),
+    ("generate_dataset.py", ["--expert", "none.pt"], "expert: no expert checkpoint"),
+])
+def test_expert_and_dataset_scripts_refuse_bad_values_before_any_work(
+        tmp_path, capsys, script, flags, message):
+    """The same typed, validated command line as the recipes: exit status 2, the field
+    named, nothing written."""
+    from tests.in_process import run_script
+    proc = run_script(ROOT / "recipes" / script, *flags, "--out", tmp_path / "out",
+                      capsys=capsys)
+    assert proc.returncode == 2, proc.stderr
+    assert message in " ".join(proc.stderr.replace("│", " ").split()), proc.stderr
+    assert not (tmp_path / "out").exists()

@@ -9,42 +9,52 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass
 
 import simdist  # noqa: F401
 from simdist.data import DatasetConfig, generate_dataset
 from simdist.experts import Expert, resolve_expert
 from simdist.utils import load_checkpoint
-from simdist.utils.cli import exit_on_folder_errors
+from simdist.utils.cli import check, check_positive, exit_on_folder_errors, parse_config
+
+
+@dataclass
+class GenerateDatasetConfig:
+    """The dataset to generate; every field is a flag, checked before any work."""
+
+    expert: str = "checkpoints/quadruped_expert/expert.pt"  # the expert checkpoint
+    out: str = "outputs/datasets/quadruped"  # output folder (rerun to resume)
+    episodes: int = DatasetConfig.episodes  # perturbed-expert episodes
+    steps: int = DatasetConfig.episode_steps  # steps per episode
+    # worlds stepped together (one collector batch); more amortise the policy's cost
+    shard_episodes: int = DatasetConfig.shard_episodes
+    workers: int = 1  # processes stepping the worlds (TorchRL ParallelEnv)
+    # local, or ray: each shard a Ray task (pip install 'simdist-rl[distributed]')
+    backend: str = "local"
+    pixels: bool = False  # also record rendered images
+    seed: int = 0  # seed of the dataset (shard seeds derive from it)
+
+    def __post_init__(self):
+        check_positive(self, "episodes", "steps", "shard_episodes", "workers")
+        check(self.backend in ("local", "ray"), "backend",
+              f"must be 'local' or 'ray', got {self.backend!r}")
+        check(resolve_expert(self.expert).exists(), "expert",
+              f"no expert checkpoint at {self.expert}: train one with "
+              "`python recipes/train_expert.py`")
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--expert", default="checkpoints/quadruped_expert/expert.pt")
-    parser.add_argument("--out", default="outputs/datasets/quadruped")
-    parser.add_argument("--episodes", type=int, default=DatasetConfig.episodes)
-    parser.add_argument("--steps", type=int, default=DatasetConfig.episode_steps)
-    parser.add_argument("--shard-episodes", type=int, default=DatasetConfig.shard_episodes,
-                        help="worlds stepped together (one collector batch); more amortise "
-                             "the per-step policy cost: 64 gave 0.70x raw dm_control, 32 "
-                             "0.59x (docs/findings.md)")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="processes stepping the worlds (TorchRL ParallelEnv)")
-    parser.add_argument("--backend", choices=["local", "ray"], default="local",
-                        help="ray: each shard is a Ray task "
-                             "(pip install 'simdist-rl[distributed]')")
-    parser.add_argument("--pixels", action="store_true")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    args.expert = resolve_expert(args.expert)  # the default is shipped as package data
-    snapshots = sorted(load_checkpoint(args.expert)["snapshots"])
-    expert = Expert.load(args.expert)
-    earlier = [Expert.load(args.expert, snapshot=name) for name in snapshots]
+    args, _ = parse_config(GenerateDatasetConfig, {"default": {}}, argv,
+                           description=__doc__.splitlines()[0], prog="generate_dataset.py")
+    expert_path = resolve_expert(args.expert)  # the default is shipped as package data
+    snapshots = sorted(load_checkpoint(expert_path)["snapshots"])
+    expert = Expert.load(expert_path)
+    earlier = [Expert.load(expert_path, snapshot=name) for name in snapshots]
     cfg = DatasetConfig(episodes=args.episodes, episode_steps=args.steps,
                         shard_episodes=args.shard_episodes, num_workers=args.workers,
                         pixels=args.pixels, seed=args.seed)
-    with exit_on_folder_errors(parser.prog):  # another config's dataset in --out
+    with exit_on_folder_errors("generate_dataset.py"):  # another config's dataset in --out
         path = generate_dataset(cfg, args.out, expert, earlier, backend=args.backend)
     meta = json.loads((path / "meta.json").read_text())
     print(f"{meta['transitions']} transitions, {meta['bytes'] / 1e6:.1f} MB, "

@@ -17,14 +17,46 @@ The committed experts came from two commands (README, "Experts and perturbed dat
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
 import simdist  # noqa: F401
+from simdist.envs import TARGETS, get_target, get_task
 from simdist.experts import Expert, SACExpertConfig, evaluate, resolve_expert, train_sac_expert
-from simdist.envs import TARGETS, get_task
 from simdist.utils import atomic_path, load_checkpoint, write_json_atomic
+from simdist.utils.cli import check, check_builds, check_positive, parse_config
+
+
+@dataclass
+class TrainExpertConfig:
+    """The expert's training run; every field is a flag, checked before any work."""
+
+    # output folder (the committed expert lives in checkpoints/quadruped_expert: name it
+    # to replace it); rerunning resumes from its latest.pt
+    out: str = "outputs/quadruped_expert"
+    frames: int = SACExpertConfig.total_frames  # environment frames of SAC
+    task: str = "quadruped-terrain"  # the task the expert trains on
+    init_from: str | None = None  # expert.pt whose actor and critic start the run
+    alpha_init: float = SACExpertConfig.alpha_init  # SAC's initial entropy temperature
+    # frames before the first update (random actions unless --init-from)
+    init_random_frames: int = SACExpertConfig.init_random_frames
+    # SAC updates per collected batch of frames
+    updates_per_batch: int = SACExpertConfig.updates_per_batch
+    # train in this target domain (an online oracle for it), e.g. slippery_slope
+    target: str | None = None
+    seed: int = 0  # seed of the run (environments, networks, replay)
+    progress: bool = True  # a progress bar
+
+    def __post_init__(self):
+        check_builds("task", get_task, self.task)
+        check_positive(self, "frames", "alpha_init", "updates_per_batch")
+        check_positive(self, "init_random_frames", allow_zero=True)
+        if self.target is not None:
+            check_builds("target", get_target, self.target)
+        if self.init_from is not None:
+            check(Path(self.init_from).exists() or resolve_expert(self.init_from).exists(),
+                  "init_from", f"no expert checkpoint at {self.init_from}")
 
 
 def plot_training_curve(curve: list[dict], path) -> None:
@@ -48,30 +80,8 @@ def plot_training_curve(curve: list[dict], path) -> None:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--out", default="outputs/quadruped_expert",
-                        help="output directory (the committed expert lives in "
-                             "checkpoints/quadruped_expert: name it to replace it)")
-    parser.add_argument("--frames", type=int, default=SACExpertConfig.total_frames)
-    parser.add_argument("--task", default="quadruped-terrain")
-    parser.add_argument("--init-from", default=None,
-                        help="expert.pt whose actor and critic start the run")
-    parser.add_argument("--alpha-init", type=float, default=SACExpertConfig.alpha_init)
-    parser.add_argument("--init-random-frames", type=int,
-                        default=SACExpertConfig.init_random_frames,
-                        help="frames before the first update (random actions unless "
-                             "--init-from)")
-    parser.add_argument("--updates-per-batch", type=int,
-                        default=SACExpertConfig.updates_per_batch,
-                        help=f"SAC updates per {SACExpertConfig.frames_per_batch} frames")
-    parser.add_argument("--target", default=None,
-                        help="train in this target domain (an online oracle for it, e.g. "
-                             "`--task quadruped-flat --target slippery_slope`)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--no-progress", action="store_true")
-    args = parser.parse_args(argv)
-    get_task(args.task)  # an unknown task fails before any work
+    args, _ = parse_config(TrainExpertConfig, {"default": {}}, argv,
+                           description=__doc__.splitlines()[0], prog="train_expert.py")
     init_from = args.init_from
     if init_from and not Path(init_from).exists():  # a shipped expert, from any directory
         init_from = str(resolve_expert(init_from))
@@ -79,7 +89,7 @@ def main(argv=None):
                           init_from=init_from, alpha_init=args.alpha_init,
                           init_random_frames=args.init_random_frames,
                           updates_per_batch=args.updates_per_batch, target=args.target)
-    path = train_sac_expert(cfg, args.out, progress=not args.no_progress)
+    path = train_sac_expert(cfg, args.out, progress=args.progress)
     expert = Expert.load(path)
     plot_training_curve(load_checkpoint(path)["curve"], path.parent / "training_curve.png")
     report = {}

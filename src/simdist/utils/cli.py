@@ -116,10 +116,12 @@ def parse_config(config_type: type[T], presets: Mapping[str, Mapping[str, Any]],
     pre.add_argument("--preset", choices=names, default="default")
     pre.add_argument("--config", default=None)
     known, rest = pre.parse_known_args(argv)
-    text = (f"{description or ''}\n\n--preset {{{','.join(names)}}}: start from that preset's "
-            "values (default: default). --config PATH: start from a run's saved config.json "
-            "instead (after the preset). Every other flag overrides them; each flag below "
-            "shows the value it starts from as its default.").strip()
+    starts = (f"--preset {{{','.join(names)}}}: start from that preset's values (default: "
+              "default). --config PATH: start from a run's saved config.json instead (after "
+              "the preset)." if len(names) > 1 else
+              "--config PATH: start from a run's saved config.json.")
+    text = (f"{description or ''}\n\n{starts} Every other flag overrides those values; "
+            "each flag below shows the value it starts from as its default.").strip()
     try:
         default = dataclasses.replace(config_type(), **presets[known.preset])
         if known.config is not None:
