@@ -57,3 +57,29 @@ def test_tensorboard_logger_writes_event_files_when_installed(tmp_path):
                     tmp_path / "ckpt.pt", progress=False, logger=logger, log_prefix="stage")
     logger.experiment.flush()
     assert list((tmp_path / "logs").rglob("events.out.tfevents.*"))
+
+
+def test_training_curves_keep_losses_and_returns_apart_with_legends_beside_the_lines():
+    """A return in the hundreds on the loss's axis would flatten the loss: each stage's
+    losses and other metrics get their own axes; legends sit outside the axes; the update
+    axis has integer ticks (no 0.5 of an update)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    from simdist.pipelines.experiment_log import curves_figure
+    fig = curves_figure({"teacher/loss_reconstruction": ([1, 2, 3], [3.0, 2.0, 1.0]),
+                         "teacher/episode_return": ([1, 2, 3], [100.0, 400.0, 900.0]),
+                         "student/loss_distillation": ([1, 2], [1.0, 0.5])})
+    visible = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_title() for ax in visible] == [
+        "student: losses", "teacher: losses", "teacher: other metrics"]
+    for ax in visible:
+        names = [line.get_label() for line in ax.get_lines()]
+        assert all(n.startswith("loss") for n in names) or not any(
+            n.startswith("loss") for n in names)
+        anchor = ax.get_legend().get_bbox_to_anchor().transformed(ax.transAxes.inverted())
+        assert anchor.x0 > 1.0  # beside the axes, right of the lines
+        assert isinstance(ax.xaxis.get_major_locator(), MaxNLocator)
+        ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+        assert all(float(t).is_integer() for t in ticks)
+    plt.close(fig)

@@ -71,36 +71,67 @@ def read_csv_scalars(log_dir: str | Path) -> dict[str, tuple[list[int], list[flo
     return out
 
 
-def plot_curves(log_dir: str | Path, path: str | Path, smooth: int = 50) -> bool:
-    """One panel per logged loss/metric, grouped by stage, from a CSV log; returns whether
-    anything was plotted. Values are averaged over windows of ``smooth`` steps."""
-    scalars = read_csv_scalars(log_dir)
-    if not scalars:
-        return False
+def curves_figure(scalars: dict, smooth: int = 50):
+    """The training-curves figure of :func:`plot_curves` from ``{name: (steps, values)}``.
+
+    One row per stage (the name's prefix before its last ``/``); losses (``loss*``) and
+    every other metric (returns, diagnostics) on separate axes of that row, so a return in
+    the hundreds never flattens a loss; legends beside the axes, not over the lines;
+    integer update ticks. Values are averaged over windows of ``smooth`` steps.
+
+    Examples:
+        >>> fig = curves_figure({"pretrain/loss_a": ([1, 2, 3], [3.0, 2.0, 1.0]),
+        ...                      "pretrain/episode_return": ([1, 2, 3], [10.0, 50.0, 90.0])})
+        >>> [ax.get_title() for ax in fig.axes]
+        ['pretrain: losses', 'pretrain: other metrics']
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
-    groups = defaultdict(dict)
+    groups = defaultdict(lambda: ({}, {}))
     for name, series in scalars.items():
         stage, _, metric = name.rpartition("/")
-        groups[stage or "run"][metric] = series
-    rows = len(groups)
-    fig, axes = plt.subplots(rows, 1, figsize=(8, 2.4 * rows), squeeze=False)
-    for ax, (stage, metrics) in zip(axes[:, 0], sorted(groups.items())):
-        for metric, (steps, values) in sorted(metrics.items()):
-            k = max(1, min(smooth, len(values) // 20 or 1))
-            xs = steps[k - 1::k] if k > 1 else steps
-            ys = [sum(values[i:i + k]) / len(values[i:i + k]) for i in range(0, len(values), k)]
-            ax.plot(xs[:len(ys)], ys[:len(xs)], label=metric)
-        ax.set_title(stage, fontsize=9)
-        ax.set_xlabel("update")
-        if all(v > 0 for _, (_, vals) in metrics.items() for v in vals):
-            ax.set_yscale("log")
-        ax.legend(fontsize=7, loc="upper right")
-        ax.grid(alpha=0.3)
+        groups[stage or "run"][0 if metric.startswith("loss") else 1][metric] = series
+    rows = sorted(groups.items())
+    columns = 2 if any(losses and others for _, (losses, others) in rows) else 1
+    fig, axes = plt.subplots(len(rows), columns, figsize=(6.5 * columns, 2.6 * len(rows)),
+                             squeeze=False)
+    for row, (stage, kinds) in zip(axes, rows):
+        panels = [(kind, metrics) for kind, metrics in zip(("losses", "other metrics"), kinds)
+                  if metrics]
+        for ax in row[len(panels):]:
+            ax.set_visible(False)
+        for ax, (kind, metrics) in zip(row, panels):
+            for metric, (steps, values) in sorted(metrics.items()):
+                k = max(1, min(smooth, len(values) // 20 or 1))
+                xs = steps[k - 1::k] if k > 1 else steps
+                ys = [sum(values[i:i + k]) / len(values[i:i + k])
+                      for i in range(0, len(values), k)]
+                ax.plot(xs[:len(ys)], ys[:len(xs)], label=metric)
+            ax.set_title(f"{stage}: {kind}", fontsize=9)
+            ax.set_xlabel("update")
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+            if all(v > 0 for _, (_, vals) in metrics.items() for v in vals):
+                ax.set_yscale("log")
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                      borderaxespad=0.0)
+            ax.grid(alpha=0.3)
     fig.tight_layout()
+    return fig
+
+
+def plot_curves(log_dir: str | Path, path: str | Path, smooth: int = 50) -> bool:
+    """The training curves of a CSV log (:func:`curves_figure`) as a PNG at ``path``;
+    returns whether anything was plotted."""
+    scalars = read_csv_scalars(log_dir)
+    if not scalars:
+        return False
+    import matplotlib.pyplot as plt
+
+    fig = curves_figure(scalars, smooth)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
+        fig.savefig(tmp, dpi=90, format="png", bbox_inches="tight")
     plt.close(fig)
     return True
