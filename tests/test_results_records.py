@@ -31,6 +31,24 @@ def test_twist_cheetah_run_records_rebuild_without_training(tmp_path, capsys):
     assert (out / "returns.png").stat().st_size > 0
 
 
+def test_twist_faithful_cartpole_records_rebuild_the_readmes_figure(tmp_path, capsys):
+    """TWIST's cartpole-balance row (the default CNN student, three seeds) from its
+    records alone: nothing trained, the same table, 31% of the Oracle."""
+    kept = ROOT / "results" / "twist_cartpole_faithful_3seeds_2026-12-07"
+    out = tmp_path / "run"
+    shutil.copytree(kept, out)
+    done = run_script(ROOT / "recipes" / "twist_dmc.py", "--seeds", 0, 1, 2, "--students",
+                      "twist", "--no-baselines", "--no-record", "--jobs", 1, "--output-dir",
+                      out, capsys=capsys)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.count("already done") == 12  # 4 stages x 3 seeds: nothing trained
+    rebuilt = json.loads((out / "results.json").read_text())
+    assert rebuilt["results"] == json.loads((kept / "results.json").read_text())["results"]
+    twist = rebuilt["summary"]["cartpole-balance"]["TWIST (student)"]
+    assert round(100 * twist["normalised"]) == 31  # the README's figure
+    assert twist["seeds"] == 3
+
+
 def _compare_runs():
     spec = importlib.util.spec_from_file_location("compare_runs",
                                                   ROOT / "experiments" / "compare_runs.py")
