@@ -345,11 +345,12 @@ class AsymmetricSACPolicy(TensorDictModuleBase):
     @torch.no_grad()
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         mode = ExplorationType.RANDOM if self.explore else ExplorationType.DETERMINISTIC
-        check_finite("pixels", td.get("pixels"))  # a NaN would become a NaN action, silently
-        check_pixels(type(self).__name__, "pixels", td.get("pixels"))  # uint8 or [-0.5, 0.5]
+        pixels = td.get("pixels")
+        check_finite("pixels", pixels)  # a NaN would become a NaN action, silently
+        check_pixels(type(self).__name__, "pixels", pixels)  # uint8 or [-0.5, 0.5]
         actor_in = td if self.frames == 1 else self._stack(td)
         # images go to the actor's device and the action comes back to the env's
-        home, device = td.get("pixels").device, module_device(self.loss)
+        home, device = pixels.device, module_device(self.loss)
         if device != home:  # a copy there: the env's tensordict keeps its own device
             actor_in = actor_in.to(device)
         with set_exploration_type(mode), \
