@@ -10,6 +10,8 @@ import torch
 
 from simdist.utils.precision import resolve_precision
 from simdist.utils.records import copy_records
+from simdist.utils.sealed import seal
+from simdist.utils.stages import read_stage_record
 from tests.in_process import run_script
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -135,7 +137,7 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     record = tmp_path / "stages" / "expert_zero_shot.json"
     stored = json.loads(record.read_text())
     del stored["result"]["slippery_slope"]
-    record.write_text(json.dumps(stored))
+    record.write_text(json.dumps(seal(stored)))  # as written by that other run
     refused = _run_here("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path,
                         capsys=capsys)
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
@@ -523,11 +525,11 @@ def test_an_ensemble_pretrains_finetunes_and_plans_with_every_member(tmp_path, t
                      "--output-dir", tmp_path, "--threads", 1, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
-    pretrain = json.loads((stages / "pretrain.json").read_text())["result"]
+    pretrain = read_stage_record(tmp_path, "pretrain")["result"]
     assert len(pretrain["members"]) == 2 and pretrain["path"] == pretrain["members"][0]
     first, second = (torch.load(m, weights_only=True) for m in pretrain["members"])
     assert any(not torch.equal(v, second[k]) for k, v in first.items())  # two models
-    round_1 = json.loads((stages / "round_1.json").read_text())["result"]
+    round_1 = read_stage_record(tmp_path, "round_1")["result"]
     for method in ("simdist", "whole"):
         assert len(round_1[f"{method}_members"]) == 2
         assert len(round_1[f"{method}_member_agents"]) == 2
@@ -655,8 +657,8 @@ def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_e
                      "--output-dir", tmp_path, "--threads", 1, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
     stages = tmp_path / "stages"
-    pretrain = json.loads((stages / "pretrain.json").read_text())["result"]
-    round_1 = json.loads((stages / "round_1.json").read_text())["result"]
+    pretrain = read_stage_record(tmp_path, "pretrain")["result"]
+    round_1 = read_stage_record(tmp_path, "round_1")["result"]
     for paths in (pretrain["members"], round_1["simdist_members"]):
         first, second = (torch.load(m, weights_only=True) for m in paths)
         for k, v in first.items():  # one encoder and heads, two dynamics
@@ -719,6 +721,33 @@ def test_a_run_killed_inside_a_stage_resumes_to_the_uninterrupted_results(
         wa = torch.load(full / "stages" / "round_2" / name, weights_only=True)
         wb = torch.load(killed / "stages" / "round_2" / name, weights_only=True)
         assert all(torch.equal(wa[k], wb[k]) for k in wa), name
+
+
+def test_a_copied_run_folder_resumes_from_its_own_files(tmp_path, tiny_expert,
+                                                       uninterrupted_tiny_run):
+    """A run folder moved elsewhere (the original gone) recomputes a stage from the
+    copy's dataset and weights, to the original's figures; stage records store no
+    absolute path into the folder."""
+    original = uninterrupted_tiny_run
+    copy = tmp_path / "copy"
+    shutil.copytree(original, copy)
+    for record in (copy / "stages").glob("*.json"):
+        assert str(original) not in record.read_text(), record.name
+    (copy / "stages" / "round_2.json").unlink()
+    shutil.rmtree(copy / "stages" / "round_2")
+    hidden = original.with_name(original.name + "_hidden")
+    original.rename(hidden)  # as on another machine: only the copy exists
+    try:
+        proc = _run("--preset", "tiny", "--expert", tiny_expert, "--no-record",
+                    "--output-dir", copy)
+    finally:
+        hidden.rename(original)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count("already done") == 6  # every stage but round 2
+    a = json.loads((original / "results.json").read_text())
+    b = json.loads((copy / "results.json").read_text())
+    assert b["curves"] == a["curves"]
+    assert b["pretrain"]["path"] == "stages/pretrain/world_model.pt"  # relative to the folder
 
 
 @pytest.mark.parametrize("reset", [True, False])

@@ -49,7 +49,8 @@ from simdist.pipelines.simdist.jobs import stage_jobs
 from simdist.pipelines.simdist.pretraining import pretrain_stage
 from simdist.pipelines.simdist.recording import probe_stage, recording_stage
 from simdist.pipelines.simdist.rounds import round_stage
-from simdist.utils import RunFolderError, StageRunner, run_jobs, write_json_atomic
+from simdist.utils import RunFolderError, StageRunner, run_jobs
+from simdist.utils.sealed import write_run_json
 from simdist.utils.cli import exit_on_folder_errors, parse_config
 from simdist.utils.machine import describe_machine, machine_line
 from simdist.utils.precision import resolve_precision
@@ -136,7 +137,7 @@ def run(cfg: Config) -> dict:
                "recordings": recordings, "curves": results, "timings_s": runner.timings,
                "torch_threads": torch.get_num_threads(), "precision": precision,
                "machine": machine}
-    write_json_atomic(out / "results.json", summary)
+    write_run_json(out / "results.json", summary, out)
     plot_results(results, get_target(cfg.target).name, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):
@@ -174,7 +175,7 @@ def run_seeds(cfg: Config) -> dict:
     print_table(curves, get_target(cfg.target).name, reference=SIMDIST)
     summary = {"config": dataclasses.asdict(cfg), "seeds": cfg.seeds, "curves": curves,
                "per_seed": {str(s): str(out / f"seed_{s}" / "results.json") for s in cfg.seeds}}
-    write_json_atomic(out / "results.json", summary)
+    write_run_json(out / "results.json", summary, out)
     plot_results(curves, get_target(cfg.target).name, out / "forward_progress.png")
     print(f"wrote {out / 'results.json'} and {out / 'forward_progress.png'}")
     return summary

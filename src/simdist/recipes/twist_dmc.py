@@ -55,7 +55,8 @@ from simdist.pipelines.twist.config import (ASYMMETRIC_SAC, PIXEL_DREAMERS, PRES
 from simdist.pipelines.twist.readout import student_row
 from simdist.pipelines.twist.recording import recording_stage
 from simdist.pipelines.twist_report import ORACLE, format_table, plot_results, summarise
-from simdist.utils import run_jobs, write_json_atomic
+from simdist.utils import run_jobs
+from simdist.utils.sealed import write_run_json
 from simdist.utils.cli import exit_on_folder_errors, parse_config
 from simdist.utils.machine import describe_machine, machine_line
 
@@ -134,10 +135,10 @@ def main(argv=None):
                   f"{own['std']:.1f} (held-out scenes: {runs[no_dr]['mean']:.1f})")
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     print(f"wall time this run: {wall:.0f} s with {cfg.jobs} process(es)")
-    write_json_atomic(out / "results.json",  # a crash mid-write keeps the previous file
+    write_run_json(out / "results.json",  # a crash mid-write keeps the previous file
         {"config": dataclasses.asdict(cfg), "results": results, "summary": summarise(results),
          "runs": records, "recording": recording, "timings_s": runner.timings,
-         "wall_s": wall, "jobs": cfg.jobs, "machine": machine})
+         "wall_s": wall, "jobs": cfg.jobs, "machine": machine}, out)
     plot_results(results, out / "returns.png")
     print(f"wrote {out / 'results.json'} and {out / 'returns.png'}")
     if cfg.logger == "csv" and plot_curves(out / "logs", out / "training_curves.png"):

@@ -27,6 +27,7 @@ from typing import Any, Iterator, Mapping, Sequence, TypeVar
 # hold an unhashable tuple by then
 import tyro
 
+from simdist.utils.sealed import EditedRecordError, check_seal
 from simdist.utils.stages import FolderInUseError, RunFolderError, field_defaults
 
 T = TypeVar("T")
@@ -162,6 +163,10 @@ def config_file(config_type: type, path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config: no file at {path}") from error
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise ConfigError(f"config: {path} is not a readable JSON file ({error})") from error
+    try:  # a results.json is sealed: an edited one is refused
+        stored = check_seal(stored, path)
+    except EditedRecordError as error:
+        raise ConfigError(f"config: {error}") from error
     if isinstance(stored, dict) and isinstance(stored.get("config"), dict):
         stored = stored["config"]  # a results.json holds its config under "config"
     if not isinstance(stored, dict):

@@ -18,39 +18,13 @@ from typing import Any, Callable, Iterator, Sequence
 
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.checkpoint import CorruptFileError, recovery_hint
+from simdist.utils.folder_errors import FolderInUseError, RunFolderError
+from simdist.utils.sealed import (RELATIVE_KEY, anchored_paths, check_seal, relative_paths,
+                                  seal)
 
 #: Config keys that say where a run writes, not what it computes: never compared, so the
 #: same folder spelled ``out``, ``out/`` or ``/abs/out`` resumes the same run.
 LOCATION_KEYS = ("output_dir", "out_dir", "outputs", "output")
-
-
-class RunFolderError(ValueError):
-    """An output folder holds results this run must not use: another config's stages or
-    dataset, or a stage record that lacks what this config needs.
-
-    The message names the folder or file and how to proceed. Recipes turn it into an
-    ``error:`` line and exit status 2, as for a bad flag
-    (:func:`simdist.utils.cli.exit_on_folder_errors`).
-
-    Examples:
-        >>> import tempfile
-        >>> out = tempfile.mkdtemp()
-        >>> StageRunner(out, {"episodes": 8}).close()
-        >>> try:
-        ...     StageRunner(out, {"episodes": 3})
-        ... except RunFolderError as err:
-        ...     print(str(err).split(" holds ")[1])
-        results of a different config (changed: ['episodes']); use another --output-dir or the same settings
-    """
-
-
-class FolderInUseError(RuntimeError):
-    """Another live run holds the output folder's lock; the message names its pid.
-
-    Examples:
-        >>> str(FolderInUseError("output folder 'out' is in use by another run"))
-        "output folder 'out' is in use by another run"
-    """
 
 
 def read_json(path: str | os.PathLike, what: str = "file", recovery: str | None = None) -> Any:
@@ -139,6 +113,12 @@ class StageRunner:
                 raise RunFolderError(f"{self.out} holds results of a different config (changed: "
                                  f"{changed}); use another --output-dir or the same settings")
         else:
+            finished = sorted(p.stem for p in (self.out / "stages").glob("*.json"))
+            if finished:  # their settings are unknown: refuse rather than guess them
+                raise RunFolderError(
+                    f"{self.out} has finished stages {finished} but no config.json, so "
+                    "the settings they were made with are unknown. Restore config.json "
+                    "(a results.json holds it under 'config'), or use another --output-dir")
             write_json_atomic(saved, config, default=str)
         return config
 
@@ -163,18 +143,14 @@ class StageRunner:
     def run(self, name: str, fn: Callable[[Path], dict]) -> dict:
         record = self.out / "stages" / f"{name}.json"
         if record.exists():
-            stored = read_json(record, f"record of stage {name!r}")
-            if not (isinstance(stored, dict) and {"result", "seconds"} <= set(stored)):
-                raise CorruptFileError(f"record of stage {name!r} {str(record)!r} is "
-                                       "incompatible (no 'result' and 'seconds'). To "
-                                       f"recover, {recovery_hint(record)}")
+            stored = read_stage_record(self.out, name)
             self.timings[name] = stored["seconds"]
             return stored["result"]
         start = time.perf_counter()
         result = fn(self.stage_dir(name))
         seconds = time.perf_counter() - start
         self.timings[name] = seconds
-        write_json_atomic(record, {"result": result, "seconds": seconds}, default=str)
+        write_stage_record(self.out, name, result, seconds)
         return result
 
     def result(self, name: str) -> dict:
@@ -186,6 +162,36 @@ class StageRunner:
         if not self.done(name):
             raise KeyError(f"stage {name!r} has not finished under {self.out}")
         return self.run(name, lambda d: {})
+
+
+def write_stage_record(out: str | Path, name: str, result: dict, seconds: float) -> Path:
+    """Writes ``<out>/stages/<name>.json`` atomically: the stage's result with every path
+    inside ``out`` stored relative to it (the folder can be moved or copied) and a digest
+    (a hand edit is refused when it is read back, see :mod:`simdist.utils.sealed`)."""
+    out = Path(out)
+    relative, places = relative_paths(json.loads(json.dumps(result, default=str)), out)
+    payload = {"result": relative, "seconds": seconds, RELATIVE_KEY: places}
+    return write_json_atomic(out / "stages" / f"{name}.json", seal(payload))
+
+
+def read_stage_record(out: str | Path, name: str) -> dict:
+    """``{"result", "seconds"}`` of a finished stage of the run folder ``out``: its digest
+    checked, its paths under ``out`` wherever the folder is now.
+
+    Raises:
+        CorruptFileError: not JSON, or not a stage record.
+        EditedRecordError: its contents do not match its digest.
+    """
+    out = Path(out)
+    path = out / "stages" / f"{name}.json"
+    stored = check_seal(read_json(path, f"record of stage {name!r}"), path, how=(
+        f"Restore the original, or delete it (and the stages after {name!r}) so the run "
+        "recomputes them."))
+    if not (isinstance(stored, dict) and {"result", "seconds"} <= set(stored)):
+        raise CorruptFileError(f"record of stage {name!r} {str(path)!r} is incompatible (no "
+                               f"'result' and 'seconds'). To recover, {recovery_hint(path)}")
+    return {"result": anchored_paths(stored["result"], out, stored.get(RELATIVE_KEY, [])),
+            "seconds": stored["seconds"]}
 
 
 # -- one run per folder ---------------------------------------------------------------------

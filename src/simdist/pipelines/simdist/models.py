@@ -12,7 +12,7 @@ from simdist.envs import make_env
 from simdist.modules import SimDistWorldModel, WorldModelEnsemble
 from simdist.pipelines.simdist.config import SIMNORM_GROUP, Config, observation_layout
 from simdist.utils import RunFolderError, load_checkpoint
-from simdist.utils.stages import field_defaults, read_json
+from simdist.utils.stages import field_defaults, read_json, read_stage_record
 
 
 def ignored_inputs(cfg: Config) -> list[int]:
@@ -68,7 +68,7 @@ def load_finished_run(run: str | Path, **overrides) -> tuple[Config, dict]:
     stored = {**field_defaults(Config), **stored}
     cfg = dataclasses.replace(Config(**{k: v for k, v in stored.items() if k in fields}),
                               **overrides)
-    return cfg, read_json(run / "stages" / "pretrain.json", "record of stage 'pretrain'")["result"]
+    return cfg, read_stage_record(run, "pretrain")["result"]
 
 
 def load_agent(cfg: Config, pretrained: dict, path: str | None = None) -> SimDistAgent:
