@@ -33,7 +33,8 @@ from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
 from simdist.data import load_dataset
 from simdist.data.dataset import read_dataset_meta
 from simdist.objectives.simdist_pretrain import SimDistPretrainLoss
-from simdist.utils import load_memmap, read_json
+from simdist.utils import load_memmap
+from simdist.utils.stages import read_stage_record
 
 
 def rescanning_buffer(path: str, slice_len: int, batch: int) -> TensorDictReplayBuffer:
@@ -67,7 +68,7 @@ def main():
         torch.set_num_threads(args.threads)
     from simdist.pipelines import simdist as recipe
     cfg, pretrained = recipe.load_finished_run(args.run)
-    path = read_json(f"{args.run}/stages/dataset.json")["result"]["path"]
+    path = read_stage_record(args.run, "dataset")["result"]["path"]
     batch = cfg.slice_len * cfg.batch_slices
     keys = dataclasses.astuple(SimDistPretrainLoss.default_keys())
     ways = {"every entry, boundaries rescanned": lambda: rescanning_buffer(path, cfg.slice_len,

@@ -41,8 +41,8 @@ from simdist.objectives.simdist_pretrain import (consistency_error, latent_predi
                                                 rollout_windows)
 from simdist.pipelines import simdist as recipe
 from simdist.experts import resolve_expert
-from simdist.utils.stages import read_json
 from simdist.utils import load_memmap
+from simdist.utils.stages import read_stage_record
 
 
 def report(name: str, table: dict[str, list[float]]) -> None:
@@ -117,7 +117,7 @@ def main(argv=None) -> None:
 def read_expert(run: str) -> str:
     # a results/ record names the shipped expert relative to the repository root
     return str(resolve_expert(
-        read_json(Path(run) / "stages" / "expert.json", "expert record")["result"]["path"]))
+        read_stage_record(run, "expert")["result"]["path"]))
 
 
 if __name__ == "__main__":

@@ -183,7 +183,7 @@ def ranking(cfg, pretrained: dict, weights: dict, domain: str, noise: float, wor
                         pick[k].append(((best - true[b].mean()) / span).item())
             td = step_mdp(env.step(td), keep_other=True)
     env.close()
-    print(f"| model | domain | Spearman (true vs predicted score) | model's pick (0 mean, 1 best) |")
+    print("| model | domain | Spearman (true vs predicted score) | model's pick (0 mean, 1 best) |")
     print("| --- | --- | --- | --- |")
     speed = torch.tensor(speed).round(decimals=6)
     for k in rho:

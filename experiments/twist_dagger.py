@@ -39,6 +39,7 @@ from simdist.modules import DreamerWorldModel
 from simdist.pipelines import control_env, load_episodes
 from simdist.pipelines.locomotion import rollout
 from simdist.pipelines import twist as recipe
+from simdist.utils.stages import read_stage_record
 
 
 def labelled(twist: TwistStudent, episodes: list) -> tuple[torch.Tensor, torch.Tensor]:
@@ -100,7 +101,7 @@ def main():
     cfg = run_config(args.outputs, args.episodes)  # the run's own settings and camera
     stages = args.outputs / "stages"
     name = f"{args.task}_s{args.seed}"
-    teacher_result = json.loads((stages / f"{name}_teacher.json").read_text())["result"]
+    teacher_result = read_stage_record(args.outputs, f"{name}_teacher")["result"]
     twist = TwistStudent.load(stages / f"{name}_{args.student}" / "student_agent.pt")
     actor = copy.deepcopy(twist.teacher.actor)  # starts as TWIST's deployed actor
 

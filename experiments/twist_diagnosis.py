@@ -129,6 +129,7 @@ from simdist.pipelines import (EpisodeReplay, control_env, evaluate_returns,
                                load_episodes, mean_metrics, train_resumable)
 from simdist.pipelines.locomotion import rollout
 from simdist.utils.memmap import load_memmap, save_memmap
+from simdist.utils.stages import read_stage_record
 
 
 def teacher_stage(outputs: Path, task: str, seed: int) -> dict:
@@ -136,7 +137,7 @@ def teacher_stage(outputs: Path, task: str, seed: int) -> dict:
     if not path.exists():
         raise FileNotFoundError(f"no finished teacher stage at {path}: run "
                                 f"`python recipes/twist_dmc.py --output-dir {outputs}` first")
-    return json.loads(path.read_text())["result"]
+    return read_stage_record(outputs, path.stem)["result"]
 
 
 class SelectDims(torch.nn.Module):

@@ -26,6 +26,7 @@ import torch
 from simdist.modules import StateReadout
 from simdist.pipelines import twist as recipe
 from simdist.utils import load_checkpoint
+from simdist.utils.stages import read_stage_record
 
 _READOUT = "encoder.readout."
 
@@ -37,9 +38,9 @@ def redeploy(cfg: recipe.Config, task: str, seed: int, outputs: Path,
     stage = outputs / "stages" / f"{task}_s{seed}_{student}.json"
     if not stage.exists():
         raise FileNotFoundError(f"no finished student stage {stage}")
-    result = json.loads(stage.read_text())["result"]
+    result = read_stage_record(outputs, stage.stem)["result"]
     teacher_file = outputs / "stages" / f"{task}_s{seed}_teacher.json"
-    teacher = json.loads(teacher_file.read_text())["result"]
+    teacher = read_stage_record(outputs, teacher_file.stem)["result"]
     teacher = {**teacher, "agent": result.get("teacher_agent", teacher["agent"])}
     torch.manual_seed(seed)
     twist = recipe.new_readout_student(cfg, task, recipe.load_teacher(cfg, task, teacher),

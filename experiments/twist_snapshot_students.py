@@ -29,6 +29,7 @@ from pathlib import Path
 import torch
 
 from simdist.pipelines import twist as recipe
+from simdist.utils.stages import read_stage_record
 
 
 def main(argv=None) -> list[dict]:
@@ -54,7 +55,7 @@ def main(argv=None) -> list[dict]:
     result_file = args.outputs / "stages" / f"{key}_teacher.json"
     if not result_file.exists():
         raise SystemExit(f"no finished teacher stage {result_file}")
-    teacher = json.loads(result_file.read_text())["result"]
+    teacher = read_stage_record(args.outputs, result_file.stem)["result"]
     if not teacher.get("selection"):
         raise SystemExit(f"the teacher stage of {key} kept no snapshots (teacher_snapshots=0)")
     own = {Path(c["snapshot"]).stem: c for c in teacher["selection"]["candidates"]}

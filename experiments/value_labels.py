@@ -72,7 +72,8 @@ from torchrl.objectives.value.functional import reward2go
 from simdist.data.dataset import read_dataset_meta
 from simdist.pipelines.locomotion import TIPPED, UPSIDE_DOWN
 from simdist.pipelines import simdist as recipe
-from simdist.utils import load_checkpoint, load_memmap, read_json
+from simdist.utils import load_checkpoint, load_memmap
+from simdist.utils.stages import read_stage_record
 
 STEPS_BEFORE_TIP = ((0, 10), (10, 20), (20, 40), (40, 80), (80, 160))
 
@@ -125,8 +126,7 @@ def windows_before_tip(until: np.ndarray, steps_before: int, length: int, first:
 def _run(run: Path):
     cfg, pretrained = recipe.load_finished_run(run)
     agent = recipe.load_agent(cfg, pretrained)
-    dataset = Path(read_json(run / "stages" / "dataset.json", "record of stage 'dataset'")
-                   ["result"]["path"])
+    dataset = Path(read_stage_record(run, "dataset")["result"]["path"])
     data = load_memmap(dataset / "data", manifest=read_dataset_meta(dataset)["files"])
     return cfg, agent, data
 
@@ -355,7 +355,7 @@ def refit(run: Path, base: str | None, out: Path, iterations: int, updates: int,
         print(f"iteration {it + 1}: labels mean {labels.mean():.1f}; held-out episodes R^2 "
               f"{r2:.3f}")
     weights = load_checkpoint(base or recipe.member_paths(
-        read_json(run / "stages" / "pretrain.json", "record of stage 'pretrain'")["result"])[0])
+        read_stage_record(run, "pretrain")["result"])[0])
     weights.update({f"value_head.{k}": v for k, v in head.state_dict().items()})
     torch.save(weights, out)
     print(f"wrote {out}")

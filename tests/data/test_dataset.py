@@ -7,7 +7,6 @@ import shutil
 import pytest
 import torch
 import torchrl
-from tensordict import TensorDict
 
 import simdist.data.dataset as dataset_module
 from simdist.data import (DatasetConfig, collect_shards, generate_dataset, generate_shard,

@@ -7,7 +7,6 @@ import json
 
 import pytest
 import torch
-from tensordict import TensorDict
 
 import simdist.data.dataset as dataset_module
 from simdist.data import DatasetConfig, generate_dataset

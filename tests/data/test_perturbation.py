@@ -1,6 +1,5 @@
 """The perturbation schedule's statistics match its configuration; state rides in the TensorDict."""
 
-import functools
 
 import numpy as np
 import pytest

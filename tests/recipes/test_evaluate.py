@@ -69,6 +69,7 @@ def test_cli_reports_forward_progress_for_a_simdist_agent(tmp_path, capsys):
     (["--video", "ep.gif"], "video: must end in .mp4"),
     (["--video-size", "63"], "video_size: must be even"),
     (["--camera-id", "-1"], "camera_id: must be >= 0"),
+    (["--output", "."], "output: must be a .json file path, got '.'"),  # a folder: refused now
 ])
 def test_bad_values_fail_before_any_work(student_file, tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exit_:
@@ -89,8 +90,34 @@ def test_missing_corrupt_or_taskless_checkpoints_are_named(tmp_path, capsys):
             recipe.main(["--checkpoint", str(path)])
         err = unboxed(capsys.readouterr().err)
         assert "checkpoint: " in err and message in err, err
-    with pytest.raises(SystemExit, match="checkpoint: required"):
+    with pytest.raises(SystemExit) as exit_:
         recipe.main([])
+    assert exit_.value.code == 2  # the user's input, as for any bad flag
+    assert "evaluate.py: error: checkpoint: required" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        recipe.main(["--checkpoint", "simdist/humanoid"])  # not a file, not a shipped name
+    assert "simdist/humanoid' does not exist" in unboxed(capsys.readouterr().err)
+
+
+def test_shipped_agents_are_listed_and_evaluated_by_name(tmp_path, capsys):
+    """``--list`` names every shipped agent; a name stands for its file everywhere."""
+    from simdist.agents import load_agent
+    from simdist.experts import Expert
+    from simdist.pretrained import PRETRAINED, pretrained_path
+    assert recipe.main(["--list"]) is None
+    listed = capsys.readouterr().out
+    for name, entry in PRETRAINED.items():
+        assert name in listed and entry.kind in listed
+    expert = load_agent("expert/quadruped")
+    assert isinstance(expert, Expert) and expert.checkpoint_meta["task"] == "quadruped-terrain"
+    out = recipe.main(["--checkpoint", "expert/quadruped", "--task", "quadruped-flat",
+                       "--target", "foam", "--episodes", "2", "--steps", "5",
+                       "--output", str(tmp_path / "r.json")])
+    assert out["agent"] == "Expert" and out["target"] == "foam"
+    assert json.loads((tmp_path / "r.json").read_text())["returns"] == out["returns"]
+    for name, entry in PRETRAINED.items():  # every shipped file is in the package
+        assert pretrained_path(name).is_file(), name
+        assert (pretrained_path(name).parents[1] / entry.record).is_file(), name
 
 
 def test_help_lists_every_field_with_its_default(capsys):

@@ -218,7 +218,14 @@ def test_recipe_rejects_unknown_target_and_missing_expert(tmp_path, capsys):
     assert proc.returncode != 0 and "unknown target domain 'moon'" in proc.stderr
     proc = _run_here("--preset", "tiny", "--expert", tmp_path / "none.pt", "--output-dir",
                      tmp_path / "b", capsys=capsys)
-    assert proc.returncode != 0 and "recipes/train_expert.py" in proc.stderr
+    assert proc.returncode == 2 and "recipes/train_expert.py" in proc.stderr
+    assert not (tmp_path / "b").exists()
+    (tmp_path / "notes.pt").write_bytes(b"not an expert")  # exists, but is no expert
+    proc = _run_here("--preset", "tiny", "--expert", tmp_path / "notes.pt", "--output-dir",
+                     tmp_path / "d", capsys=capsys)
+    assert proc.returncode == 2 and "error: expert: " in proc.stderr
+    assert "notes.pt' is corrupt" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "d").exists()  # no config.json, no .lock: refused before any work
     proc = _run_here("--preset", "tiny", "--device", "tpu9", "--output-dir", tmp_path / "c",
                      capsys=capsys)
     assert proc.returncode == 2 and "unknown device 'tpu9'" in proc.stderr
@@ -656,7 +663,6 @@ def test_a_shared_encoder_ensemble_differs_only_in_its_dynamics(tmp_path, tiny_e
                      "--ensemble-shared-encoder", "--budgets-min", 0.02, "--no-record",
                      "--output-dir", tmp_path, "--threads", 1, capsys=capsys)
     assert proc.returncode == 0, proc.stderr
-    stages = tmp_path / "stages"
     pretrain = read_stage_record(tmp_path, "pretrain")["result"]
     round_1 = read_stage_record(tmp_path, "round_1")["result"]
     for paths in (pretrain["members"], round_1["simdist_members"]):

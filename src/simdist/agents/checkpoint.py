@@ -197,15 +197,18 @@ def build(what: str, builder, desc, path):
 
 
 def load_agent(path: str | os.PathLike, map_location=None):
-    """Loads any self-describing agent file into the class it names.
+    """Loads any self-describing agent file, or a shipped agent by name, into its class.
 
     Args:
-        path: an agent file written by ``save``.
+        path: an agent file written by ``save``, or the name of a shipped agent
+            (:data:`simdist.pretrained.PRETRAINED`, e.g. ``"simdist/quadruped"``).
         map_location: device to put the agent on (default: the CPU).
 
     Returns:
-        a :class:`~simdist.agents.SimDistAgent`, :class:`~simdist.agents.DreamerAgent`
-        or :class:`~simdist.agents.TwistStudent`, its ``meta`` dict in ``.checkpoint_meta``.
+        a :class:`~simdist.agents.SimDistAgent`, :class:`~simdist.agents.DreamerAgent`,
+        :class:`~simdist.agents.TwistStudent` or :class:`~simdist.agents.AsymmetricSACAgent`
+        (or a :class:`~simdist.experts.Expert` for an ``expert.pt``), its ``meta`` dict in
+        ``.checkpoint_meta``.
 
     Examples:
         >>> import tempfile
@@ -218,9 +221,40 @@ def load_agent(path: str | os.PathLike, map_location=None):
         ('DreamerAgent', 'cartpole-balance')
     """
     from simdist import agents  # the classes import this module
+    from simdist.pretrained import resolve_agent_file
 
+    path = resolve_agent_file(path)
+    if is_expert_file(path):
+        from simdist.experts import Expert
+        return Expert.load(path).to(map_location or "cpu")
     ckpt = read_agent_checkpoint(path)
     return getattr(agents, ckpt["class"]).from_checkpoint(ckpt, path, map_location)
+
+
+def is_expert_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a SAC expert's ``expert.pt`` (:meth:`simdist.experts.Expert.save`)
+    rather than an agent file: the experts keep their own format, older than agent files."""
+    path = Path(path)
+    if path.name != "expert.pt" or not path.is_file():
+        return False
+    ckpt = load_checkpoint(path)
+    return isinstance(ckpt, dict) and "actor" in ckpt and "critic" in ckpt and "class" not in ckpt
+
+
+def read_agent_meta(path: str | os.PathLike) -> dict:
+    """The ``meta`` of an agent file or shipped agent (for an expert: its task), read and
+    checked without building the agent.
+
+    Raises:
+        FileNotFoundError, CorruptCheckpointError: naming the file.
+    """
+    from simdist.pretrained import resolve_agent_file
+
+    path = resolve_agent_file(path)
+    if is_expert_file(path):
+        config = load_checkpoint(path).get("config", {})
+        return {"task": config.get("task", "")} if isinstance(config, dict) else {}
+    return read_agent_checkpoint(path)["meta"]
 
 
 class LoadableAgent:

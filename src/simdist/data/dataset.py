@@ -32,12 +32,13 @@ from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.data import SliceSampler, TensorDictReplayBuffer, TensorStorage
 from torchrl.envs import InitTracker, ParallelEnv, TransformedEnv
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
 from simdist.data.mixture import EpisodeMixture
 from simdist.data.perturbation import ActionPerturbation, PerturbationSchedule
 from simdist.envs import DynamicsRandomisation, make_env
+from simdist.utils.checkpoint import recovery_hint
 from simdist.utils.atomic import write_json_atomic
 from simdist.utils.memmap import CorruptDataError, folder_manifest, load_memmap
 from simdist.utils.stages import RunFolderError, field_defaults, iter_jobs
@@ -381,8 +382,9 @@ def read_dataset_meta(path: str | Path) -> dict:
         meta = json.loads(meta_path.read_text())
         meta["config"], meta["shards_done"]  # noqa: B018 - the keys every reader needs
     except (ValueError, KeyError, TypeError) as err:
-        raise CorruptDataError(f"{meta_path} is corrupt ({err!r}); delete {path} and "
-                               "generate the dataset again") from err
+        # inside a run folder the stage record must go too, or the rerun skips the stage
+        raise CorruptDataError(f"{meta_path} is corrupt ({err!r}). To recover, "
+                               f"{recovery_hint(path)}") from err
     return meta
 
 

@@ -107,6 +107,7 @@ class Expert:
 
     def __init__(self, actor, critic):
         self.actor, self.critic = actor, critic
+        self.checkpoint_meta: dict = {}  # Expert.load: the task it was trained on
         net = actor.module[0]  # TensorDictModule: observation -> (loc, scale)
         spec = actor.spec["action"] if "action" in actor.spec.keys() else actor.spec
         self._net = net.module
@@ -127,6 +128,23 @@ class Expert:
             return low + (high - low) * (torch.tanh(loc) + 1) / 2
 
         return TensorDictModule(act, in_keys=["observation"], out_keys=["action"])
+
+    def policy(self, explore: bool = False, action_spec=None) -> TensorDictModule:
+        """The agents' interface (``simdist.pipelines.evaluate_agent``): the deterministic
+        policy (an expert acts deterministically; ``explore`` must be False)."""
+        if explore:
+            raise ValueError("an Expert's policy is deterministic; sample with act(td, False)")
+        return self.deterministic()
+
+    def make_primer(self) -> None:
+        """An expert is memoryless: no recurrent state to prime (agents' interface)."""
+        return None
+
+    def to(self, device) -> Expert:
+        """Moves the networks (and action bounds) to ``device``; returns ``self``."""
+        self.actor, self.critic = self.actor.to(device), self.critic.to(device)
+        self._low, self._high = self._low.to(device), self._high.to(device)
+        return self
 
     @classmethod
     def untrained(cls, obs_dim: int, action_dim: int, hidden: int = 256) -> Expert:
@@ -202,7 +220,9 @@ class Expert:
         except (RuntimeError, TypeError, AttributeError) as err:  # wrong or mis-shaped weights
             raise incompatible(f"its weights do not fit the networks it describes "
                                f"({str(err).splitlines()[0]})") from None
-        return cls(actor.eval(), critic.eval())
+        expert = cls(actor.eval(), critic.eval())
+        expert.checkpoint_meta = {"task": cfg.get("task", ""), "frames": ckpt.get("frames", 0)}
+        return expert
 
 
 def evaluate(actor, cfg: SACExpertConfig, episodes: int, seed: int, target=None) -> dict:

@@ -27,6 +27,8 @@ from torch import nn
 
 from simdist.modules.checks import check_last_dims
 from simdist.modules.encoders import PixelEncoder, StateEncoder
+from simdist.utils.checkpoint import CorruptCheckpointError, load_checkpoint
+from simdist.utils.stages import read_json
 
 
 class StateReadout(nn.Module):
@@ -226,14 +228,20 @@ class StateReadout(nn.Module):
             if not p.exists():
                 raise FileNotFoundError(f"no readout file {p} (a readout is a .pt of weights "
                                         f"and a .json description beside it)")
-        desc = json.loads(sidecar.read_text())
-        if "readout" not in desc:
+        desc = read_json(sidecar, "readout description",
+                         recovery=f"restore it, or refit the readout that {path} belongs to")
+        if not isinstance(desc, dict) or "readout" not in desc:
             raise ValueError(f"{sidecar} has no 'readout' description")
         readout = cls.from_description(desc["readout"])
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        # weights only, and an error that names the file, never torch's advice to retry
+        # with weights_only=False (which would run pickled code)
+        state = load_checkpoint(path, recovery=f"refit the readout (its record: {sidecar})")
+        if not isinstance(state, dict):
+            raise CorruptCheckpointError(f"{path} holds a {type(state).__name__}, not a "
+                                         "readout's weights")
         try:
             readout.load_state_dict(state)
-        except RuntimeError as e:
+        except (RuntimeError, TypeError, AttributeError) as e:
             raise ValueError(f"{path} does not match its description {sidecar}: {e}") from None
         for name, value in state.items():
             if value.is_floating_point() and not torch.isfinite(value).all():

@@ -20,6 +20,7 @@ from torchrl.envs import InitTracker, TransformedEnv
 
 from simdist.agents import AsymmetricSACAgent, DreamerAgent, SimDistAgent, TwistStudent
 from simdist.envs import get_target, get_task, make_env
+from simdist.experts import Expert
 from simdist.modules import PlannerConfig
 from simdist.pipelines.locomotion import progress_stats, rollout
 from simdist.pipelines.statistics import summarise
@@ -72,10 +73,10 @@ def agent_policy(agent, env, planner: PlannerConfig | None = None, seed: int = 0
     """The agent's deterministic policy for ``env`` (``planner`` for a SimDist agent)."""
     if isinstance(agent, SimDistAgent):
         return agent.policy(action_spec=env.action_spec, config=planner, seed=seed)
-    if isinstance(agent, (DreamerAgent, TwistStudent, AsymmetricSACAgent)):
+    if isinstance(agent, (DreamerAgent, TwistStudent, AsymmetricSACAgent, Expert)):
         return agent.policy(explore=False, action_spec=env.action_spec)
     raise TypeError(f"cannot evaluate a {type(agent).__name__}: expected SimDistAgent, "
-                    "DreamerAgent, TwistStudent or AsymmetricSACAgent")
+                    "DreamerAgent, TwistStudent, AsymmetricSACAgent or Expert")
 
 
 def evaluate_agent(agent, task: str, target=None, episodes: int = 8, steps: int | None = None,

@@ -11,6 +11,8 @@ Usage:
     python recipes/evaluate.py --checkpoint out/simdist.pt --task quadruped-flat \\
         --target '{"name": "icy", "friction": 0.4}' --episodes 16 --video icy.mp4
     python recipes/evaluate.py --checkpoint agent.pt --target my_target.json --output r.json
+    python recipes/evaluate.py --checkpoint simdist/quadruped --target foam --video foam.mp4
+    python recipes/evaluate.py --list   # the shipped agents
 """
 
 from __future__ import annotations
@@ -22,11 +24,12 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 import torch
 
 from simdist.agents import load_agent
-from simdist.agents.checkpoint import read_agent_checkpoint
+from simdist.agents.checkpoint import read_agent_meta
 from simdist.envs import get_target, get_task
 from simdist.pipelines.evaluate_agent import agent_camera, evaluate_agent, record_video
 from simdist.utils import resolve_device, write_json_atomic
-from simdist.utils.cli import check, check_builds, check_positive, parse_config
+from simdist.pretrained import describe_pretrained
+from simdist.utils.cli import check, check_builds, check_positive, parse_config, usage_error
 from simdist.viz.video import INSTALL_HINT, video_backend_available
 
 
@@ -34,7 +37,9 @@ from simdist.viz.video import INSTALL_HINT, video_backend_available
 class Config:
     """Evaluation settings; every field is a ``--kebab-case`` flag, checked before any work."""
 
-    checkpoint: str = ""  # agent file written by an agent's save() (SimDist, Dreamer, TWIST, SAC)
+    # agent file written by an agent's save() (SimDist, Dreamer, TWIST, SAC), an expert.pt,
+    # or a shipped agent's name (--list shows them, e.g. simdist/quadruped)
+    checkpoint: str = ""
     # task to run (a name in simdist.envs.TASKS); empty: the task recorded in the checkpoint
     task: str = ""
     # a name in simdist.envs.TARGETS, a JSON object of TargetDomain fields
@@ -50,6 +55,7 @@ class Config:
     # camera a pixel agent sees; None: the one its file records (the TWIST recipe's
     # --camera-id), else the task's
     camera_id: int | None = None
+    list: bool = False  # print the shipped agents (names --checkpoint takes) and exit
 
     def __post_init__(self):
         check_positive(self, "episodes", "video_size")
@@ -62,6 +68,9 @@ class Config:
             check(self.video.endswith(".mp4"), "video", f"must end in .mp4, got {self.video!r}")
             check(video_backend_available(), "video", INSTALL_HINT)
         check_builds("device", resolve_device, self.device)
+        if self.output:
+            check(self.output.endswith(".json") and not Path(self.output).is_dir(), "output",
+                  f"must be a .json file path, got {self.output!r}")
         if self.camera_id is not None:
             check(self.camera_id >= 0, "camera_id", f"must be >= 0, got {self.camera_id}")
         if self.checkpoint:  # empty only in the parser's defaults; main() requires it
@@ -70,9 +79,9 @@ class Config:
     def resolve_task(self) -> str:
         """``--task``, else the task the checkpoint records (reads and checks the file)."""
         try:
-            meta = read_agent_checkpoint(self.checkpoint)["meta"]
-        except (OSError, RuntimeError) as err:  # missing, unreadable or corrupt: say which
-            raise ValueError(str(err)) from None
+            meta = read_agent_meta(self.checkpoint)
+        except (OSError, RuntimeError, KeyError) as err:  # missing, unreadable or corrupt
+            raise ValueError(str(err).strip('"')) from None
         task = self.task or meta.get("task", "")
         if not task:
             raise ValueError(f"{self.checkpoint} records no task; pass --task")
@@ -123,8 +132,12 @@ def run(cfg: Config) -> dict:
 def main(argv=None):
     cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
                           prog="evaluate.py")
+    if cfg.list:
+        print(describe_pretrained())
+        return None
     if not cfg.checkpoint:
-        raise SystemExit("evaluate.py: error: checkpoint: required (--checkpoint PATH)")
+        usage_error("evaluate.py", "checkpoint: required (--checkpoint PATH or a name from "
+                                   "--list)")
     with torch.no_grad():
         return run(cfg)
 

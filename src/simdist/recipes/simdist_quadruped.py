@@ -38,7 +38,7 @@ import torch
 
 import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.envs import describe_ranges, get_target
-from simdist.experts import resolve_expert
+from simdist.experts import Expert, resolve_expert
 from simdist.pipelines.experiment_log import make_logger, plot_curves
 from simdist.pipelines.report import aggregate_seeds, plot_results, print_table
 from simdist.pipelines.simdist.config import PRESETS, SIMDIST, Config
@@ -51,7 +51,8 @@ from simdist.pipelines.simdist.recording import probe_stage, recording_stage
 from simdist.pipelines.simdist.rounds import round_stage
 from simdist.utils import RunFolderError, StageRunner, run_jobs
 from simdist.utils.sealed import write_run_json
-from simdist.utils.cli import exit_on_folder_errors, parse_config
+from simdist.utils.checkpoint import CorruptCheckpointError
+from simdist.utils.cli import exit_on_folder_errors, parse_config, usage_error
 from simdist.utils.machine import describe_machine, machine_line
 from simdist.utils.precision import resolve_precision
 from simdist.viz.video import INSTALL_HINT, video_backend_available
@@ -184,10 +185,16 @@ def run_seeds(cfg: Config) -> dict:
 def main(argv=None):
     cfg, _ = parse_config(Config, PRESETS, argv, description=__doc__.splitlines()[0],
                           prog="simdist_quadruped.py")
-    if not cfg.retrain_expert and not resolve_expert(cfg.expert).exists():  # before any work
-        raise SystemExit(f"simdist_quadruped.py: error: expert: no checkpoint at {cfg.expert}: "
-                         "train one with `python recipes/train_expert.py` or pass "
-                         "--retrain-expert")
+    if not cfg.retrain_expert:  # a missing or bad expert is refused before any work
+        path = resolve_expert(cfg.expert)
+        if not path.exists():
+            usage_error("simdist_quadruped.py", f"expert: no checkpoint at {cfg.expert}: "
+                        "train one with `python recipes/train_expert.py` or pass "
+                        "--retrain-expert")
+        try:
+            Expert.load(path)
+        except (CorruptCheckpointError, OSError) as err:
+            usage_error("simdist_quadruped.py", f"expert: {err}")
     with exit_on_folder_errors("simdist_quadruped.py"):
         return run_seeds(cfg) if cfg.seeds else run(cfg)
 

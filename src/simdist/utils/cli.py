@@ -185,6 +185,13 @@ def config_file(config_type: type, path: str | Path) -> dict[str, Any]:
     return values
 
 
+def usage_error(prog: str, message: str) -> typing.NoReturn:
+    """Ends the program as argparse does for a bad flag: ``<prog>: error: <message>`` on
+    stderr, exit status 2 (the user's input, not a failure of the program)."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 @contextlib.contextmanager
 def exit_on_folder_errors(prog: str) -> Iterator[None]:
     """Ends the program with ``<prog>: error: <message>`` and exit status 2 (as argparse
