@@ -756,6 +756,26 @@ def test_a_copied_run_folder_resumes_from_its_own_files(tmp_path, tiny_expert,
     assert b["pretrain"]["path"] == "stages/pretrain/world_model.pt"  # relative to the folder
 
 
+def test_a_finished_run_ships_as_a_named_agent_with_its_training_record(
+        tmp_path, uninterrupted_tiny_run):
+    """``python -m simdist.pipelines.simdist.shipping RUN``: the pretrained agent and how
+    it was made, as ``simdist/quadruped`` is shipped."""
+    from simdist.agents import SimDistAgent, load_agent
+    from simdist.pipelines.simdist.shipping import main as ship_main
+    ship_main([str(uninterrupted_tiny_run), "--dest", str(tmp_path)])
+    agent = load_agent(tmp_path / "agent.pt")
+    assert isinstance(agent, SimDistAgent) and agent.checkpoint_meta["task"] == "quadruped-flat"
+    assert agent.planner_config.horizon == 3  # the tiny preset's planner travels with it
+    record = json.loads((tmp_path / "training_record.json").read_text())
+    config = json.loads((uninterrupted_tiny_run / "config.json").read_text())
+    assert record["config"] == config and record["name"] == "simdist/quadruped"
+    assert set(record["stage_seconds"]) >= {"dataset", "pretrain", "zero_shot"}
+    assert record["dataset"]["transitions"] == 4 * 20
+    assert "consistency" in " ".join(record["loss_curve"])  # from the run's CSV logs
+    assert set(record["zero_shot"]) == {"sim", "slippery_slope"}
+    assert "cpu" in record["machine"]
+
+
 @pytest.mark.parametrize("reset", [True, False])
 def test_collecting_with_reset_upside_down_starts_a_fallen_world_again(reset, monkeypatch):
     from simdist.pipelines import simdist as recipe

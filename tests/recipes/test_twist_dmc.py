@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from simdist.agents import load_agent
+from simdist.utils import read_run_json
 from simdist.viz import entity_paths
 from tests.in_process import run_script, script_path
 
@@ -398,6 +399,7 @@ def test_a_candidate_of_the_last_snapshot_deploys_with_that_snapshots_actor(tmp_
     import pytest
 
     from simdist.agents import load_agent
+from simdist.utils import read_run_json
     from simdist.utils import load_checkpoint
 
     recipe = _recipe_module()
@@ -731,6 +733,7 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
     assert all(camera == 1 for _, camera in cameras), cameras
     # the saved files record the camera, so recipes/evaluate.py sees what the recipe saw
     from simdist.agents import load_agent
+from simdist.utils import read_run_json
     for saved in ("student/student_agent.pt", "dreamer/dreamer_agent.pt"):
         assert load_agent(tmp_path / saved).checkpoint_meta["camera_id"] == 1
     # a camera the task's model does not have is refused by name before any work
@@ -764,8 +767,9 @@ def test_teacher_selection_deploys_the_best_validated_snapshot(teacher_chain_run
         recipe.Config(**{**recipe.PRESETS["tiny"], "teacher_snapshots": 3})  # 2 episodes
     with pytest.raises(ConfigError, match="teacher_select_episodes"):
         recipe.Config(teacher_select_episodes=0)
-    # the teacher chain's run (the tiny preset keeps 2 snapshots)
-    results = json.loads((teacher_chain_run / "results.json").read_text())
+    # the teacher chain's run (the tiny preset keeps 2 snapshots); its paths are stored
+    # relative to the run folder, read_run_json puts them under it
+    results = read_run_json(teacher_chain_run / "results.json")
     run = results["runs"]["cartpole-balance_s0"]
     teacher = run["teacher"]
     candidates = teacher["selection"]["candidates"]

@@ -96,7 +96,8 @@ class SimDistEnv(EnvBase):
                   "dynamics": ((len(DynamicsParams.FIELDS),), np.float32)}
         if sim.observation_layout is not None:
             shapes["observation"] = ((sim.observation_layout.size,), np.float32)
-            shapes["forward_progress"] = ((1,), np.float32)
+        for name in sim.readings:  # forward_progress (locomotion), success (manipulation)
+            shapes[name] = ((1,), np.float32)
         if self.pixels:
             shapes["pixels"] = ((image_size, image_size, 3), np.uint8)
         shapes.update(reward=((1,), np.float32), terminated=((1,), bool), truncated=((1,), bool))

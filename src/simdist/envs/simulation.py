@@ -22,6 +22,9 @@ from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, Vi
 from simdist.rendering import rendering_error
 from simdist.envs.targets import TargetDomain
 
+#: Scalar readings a task may offer (as methods of the task taking the physics).
+READINGS = ("forward_progress", "success")
+
 
 class Simulation:
     """A single dm_control world with dynamics/visual randomisation and a target shift.
@@ -77,6 +80,18 @@ class Simulation:
             if (visual is not None and pixels) else None
         self.visual = visual
         self.params = target.dynamics()
+        if hasattr(self.task, "action_bounds"):  # e.g. Cartesian deltas, not actuator targets
+            low, high = self.task.action_bounds(self.physics)
+            self.action_low, self.action_high = (np.asarray(low, np.float32),
+                                                 np.asarray(high, np.float32))
+        else:
+            self.action_low = self.physics.model.actuator_ctrlrange[:, 0].astype(np.float32)
+            self.action_high = self.physics.model.actuator_ctrlrange[:, 1].astype(np.float32)
+            limited = self.physics.model.actuator_ctrllimited.astype(bool)
+            self.action_low[~limited], self.action_high[~limited] = -np.inf, np.inf
+        #: per-step scalar readings the task offers (locomotion's forward progress, a
+        #: manipulation task's success), each an entry of the env's output
+        self.readings = tuple(name for name in READINGS if hasattr(self.task, name))
         self.seed(seed)
         # Layouts need an initialised episode (suite observations read the live state).
         self._initialise_episode()
@@ -86,10 +101,6 @@ class Simulation:
         else:
             self.state_layout = task_registry.suite_state_layout(self.task, self.physics)
             self.observation_layout = None
-        self.action_low = self.physics.model.actuator_ctrlrange[:, 0].astype(np.float32)
-        self.action_high = self.physics.model.actuator_ctrlrange[:, 1].astype(np.float32)
-        limited = self.physics.model.actuator_ctrllimited.astype(bool)
-        self.action_low[~limited], self.action_high[~limited] = -np.inf, np.inf
         self.seed(seed)
         self.steps = 0
 
@@ -122,7 +133,7 @@ class Simulation:
         self.params = draw.compose(self.target.dynamics())
         self._dyn_editor.apply(self.params)
         self._params_array = self.params.as_array()
-        self._pending = deque([np.zeros_like(self.physics.data.ctrl)] * self.params.action_latency)
+        self._pending = deque([np.zeros(len(self.action_low))] * self.params.action_latency)
         with self.physics.reset_context():
             self.task.initialize_episode(self.physics)
         if self._vis_editor is not None:
@@ -169,7 +180,8 @@ class Simulation:
         if self.spec.is_robot:
             self.task.privileged_state(self.physics, row["state"])
             self.task.robot_observation(self.physics, row["observation"])
-            row["forward_progress"][0] = self.task.forward_progress(self.physics)
+        for name in self.readings:
+            row[name][0] = getattr(self.task, name)(self.physics)
         else:
             task_registry.suite_state(self.task, self.physics, row["state"])
         row["dynamics"][:] = self._params_array

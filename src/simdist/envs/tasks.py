@@ -16,7 +16,9 @@ from typing import Callable
 import numpy as np
 from dm_control import suite
 
-from simdist.envs import quadruped
+from dm_control import mujoco as mujoco_physics
+
+from simdist.envs import manipulation, quadruped
 from simdist.envs.layout import Layout
 from simdist.envs.targets import TargetDomain
 
@@ -107,6 +109,24 @@ TASKS["quadruped-slope"] = TaskSpec(
 TASKS["quadruped-terrain"] = TaskSpec(
     "quadruped-terrain", _quadruped_builder(0.0, (-15.0, 15.0)), action_repeat=1,
     max_episode_steps=500, camera_id=2, is_robot=True, supports_slope=True)
+
+
+def _tabletop_builder(name: str):
+    def build(target: TargetDomain, seed, init: str = "narrow", texture_size: int = 64,
+              **task_kwargs):
+        task_class = manipulation.TASK_CLASSES[name]
+        xml, assets = manipulation.make_model(task_class.kind, texture_size)
+        physics = mujoco_physics.Physics.from_xml_string(xml, assets)
+        task = task_class(init=init, random=seed, **task_kwargs)
+        n_sub_steps = int(round(manipulation.CONTROL_TIMESTEP / physics.timestep()))
+        return physics, task, n_sub_steps
+    return build
+
+
+# Tabletop manipulation (simdist.envs.manipulation): 20 Hz Cartesian gripper, 150 steps.
+for _name in manipulation.TASK_CLASSES:
+    TASKS[_name] = TaskSpec(_name, _tabletop_builder(_name), action_repeat=1,
+                            max_episode_steps=150, camera_id=0, is_robot=True)
 
 
 def register_task(spec: TaskSpec, overwrite: bool = False) -> TaskSpec:
