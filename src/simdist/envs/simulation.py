@@ -180,10 +180,10 @@ class Simulation:
         if self.spec.is_robot:
             self.task.privileged_state(self.physics, row["state"])
             self.task.robot_observation(self.physics, row["observation"])
-        for name in self.readings:
-            row[name][0] = getattr(self.task, name)(self.physics)
         else:
             task_registry.suite_state(self.task, self.physics, row["state"])
+        for name in self.readings:
+            row[name][0] = getattr(self.task, name)(self.physics)
         row["dynamics"][:] = self._params_array
         if self.pixels:
             row["pixels"][:] = self.render()
