@@ -9,6 +9,8 @@ Examples:
 
 from simdist.envs.env import SimDistEnv
 from simdist.envs.layout import Layout
+from simdist.envs.manipulation import BlockLift, BlockPush, PegInsertion, TabletopTask
+from simdist.envs.manipulation_scripts import scripted_policy
 from simdist.envs.randomisation import DynamicsParams, DynamicsRandomisation, VisualRandomisation
 from simdist.rendering import RenderingUnavailableError
 from simdist.envs.targets import PRESETS as TARGETS
@@ -34,5 +36,6 @@ __all__ = [
     "SimDistEnv", "make_env", "Layout", "DynamicsParams", "DynamicsRandomisation",
     "VisualRandomisation", "RenderingUnavailableError", "TARGETS", "TargetDomain",
     "describe_ranges", "get_target", "TASKS", "TaskSpec", "get_task", "TextureBank",
-    "ColourBank", "register_task", "register_target",
+    "ColourBank", "register_task", "register_target", "BlockPush", "BlockLift",
+    "PegInsertion", "TabletopTask", "scripted_policy",
 ]

@@ -153,6 +153,12 @@ class TabletopTask(base.Task):
     """The gripper, its Cartesian delta actions and the readings every tabletop task shares.
 
     Subclasses set the scene (:meth:`place`), the reward and :meth:`success`.
+
+    Examples:
+        >>> from simdist.envs import make_env
+        >>> env = make_env("block-lift", seed=0, task_kwargs={"init": "wide"})
+        >>> type(env.sims[0].task).__name__, env.action_spec.shape
+        ('BlockLift', torch.Size([4]))
     """
 
     kind = "cube"
@@ -260,7 +266,14 @@ class _CubeTask(TabletopTask):
 
 class BlockPush(_CubeTask):
     """Push the cube onto the goal marker: 15 cm ahead of it, moved by half a grid point
-    drawn on its own (so at least 9 cm away on the wide grid)."""
+    drawn on its own (so at least 9 cm away on the wide grid).
+
+    Examples:
+        >>> from simdist.envs import make_env
+        >>> env = make_env("block-push", seed=0)
+        >>> env.state_layout.names()[:4], float(env.reset()["success"])
+        (['hand_pos', 'hand_vel', 'jaws', 'object_pos'], 0.0)
+    """
 
     centre = np.array([-0.05, 0.0])
 
@@ -280,7 +293,14 @@ class BlockPush(_CubeTask):
 
 
 class BlockLift(_CubeTask):
-    """Grasp the cube and lift it 10 cm (the goal marks the height above the cube)."""
+    """Grasp the cube and lift it 10 cm (the goal marks the height above the cube).
+
+    Examples:
+        >>> from simdist.envs import make_env
+        >>> env = make_env("block-lift", seed=0)
+        >>> env.observation_layout.names()
+        ['hand_pos', 'hand_vel', 'jaws', 'goal']
+    """
 
     def place_goal(self, physics, cube):
         physics.model.ptr.site_pos[self._goal_site] = [cube[0], cube[1],
@@ -300,7 +320,14 @@ class BlockLift(_CubeTask):
 class PegInsertion(TabletopTask):
     """Insert the held peg into the hole. The robot is told where the hole is
     (``hole_nominal``); ``hole_offset_m`` moves the real hole from there (a calibration
-    error the robot cannot see but can feel)."""
+    error the robot cannot see but can feel).
+
+    Examples:
+        >>> from simdist.envs import make_env
+        >>> env = make_env("peg-insertion", seed=0, task_kwargs={"hole_offset_m": (0.003, 0)})
+        >>> env.action_spec.shape, env.observation_layout.names()
+        (torch.Size([3]), ['hand_pos', 'hand_vel', 'hole_nominal', 'wrist_force'])
+    """
 
     kind, jaws = "peg", False
 

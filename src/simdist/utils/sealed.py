@@ -43,7 +43,16 @@ RELATIVE_KEY = "run_relative"
 class EditedRecordError(RunFolderError):
     """A sealed record whose contents no longer match its digest (edited by hand, or
     corrupted): the run refuses it rather than report or reuse figures it did not compute.
-    A :class:`RunFolderError`, so the recipes end with exit status 2 and the message."""
+    A :class:`RunFolderError`, so the recipes end with exit status 2 and the message.
+
+    Examples:
+        >>> record = seal({"result": 1.0})
+        >>> try:
+        ...     check_seal({**record, "result": 2.0}, "stages/x.json")
+        ... except EditedRecordError as err:
+        ...     print(isinstance(err, RunFolderError))
+        True
+    """
 
 
 def digest(payload: Any) -> str:
