@@ -399,7 +399,6 @@ def test_a_candidate_of_the_last_snapshot_deploys_with_that_snapshots_actor(tmp_
     import pytest
 
     from simdist.agents import load_agent
-from simdist.utils import read_run_json
     from simdist.utils import load_checkpoint
 
     recipe = _recipe_module()
@@ -733,7 +732,6 @@ def test_camera_id_renders_every_pixel_stage_from_that_camera(tmp_path):
     assert all(camera == 1 for _, camera in cameras), cameras
     # the saved files record the camera, so recipes/evaluate.py sees what the recipe saw
     from simdist.agents import load_agent
-from simdist.utils import read_run_json
     for saved in ("student/student_agent.pt", "dreamer/dreamer_agent.pt"):
         assert load_agent(tmp_path / saved).checkpoint_meta["camera_id"] == 1
     # a camera the task's model does not have is refused by name before any work
