@@ -92,3 +92,19 @@ def test_warm_start_puts_the_loaded_critic_into_every_q_copy(tmp_path):
     for name, value in actor.items():
         torch.testing.assert_close(state[f"actor_network_params.{name}"], value)
     assert abs(state["log_alpha"].exp().item() - 0.02) < 1e-6
+
+
+@pytest.mark.parametrize("task, action_dim", [("block-push", 4), ("peg-insertion", 3)])
+def test_a_manipulation_expert_trains_on_its_grid_and_reports_success(tmp_path, task,
+                                                                      action_dim):
+    from simdist.experts.sac import task_kwargs
+    cfg = SACExpertConfig(task=task, init="wide", total_frames=256, **TINY)
+    assert task_kwargs(cfg) == {"init": "wide"}
+    path = train_sac_expert(cfg, tmp_path, progress=False)
+    curve = torch.load(path, weights_only=True)["curve"]
+    assert "success" in curve[-1] and 0 <= curve[-1]["success"] <= 1
+    assert "forward_progress" not in curve[-1]  # locomotion's reading only
+    env = make_training_env(cfg, seed=0, num_envs=2)
+    assert env.sims[0].task.init == "wide"
+    td = env.reset()
+    assert Expert.load(path).act(td)["action"].shape == (2, action_dim)

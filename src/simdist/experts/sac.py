@@ -25,6 +25,7 @@ from torchrl.objectives import SACLoss, SoftUpdate
 from tqdm import tqdm
 
 from simdist.envs import DynamicsRandomisation, get_target, make_env
+from simdist.envs.manipulation import TASK_CLASSES as TABLETOP_TASKS
 from simdist.experts.networks import make_actor, make_critic
 from simdist.modules.checks import check_finite
 from simdist.utils.atomic import write_json_atomic
@@ -50,7 +51,8 @@ class SACExpertConfig:
     """
 
     task: str = "quadruped-flat"
-    speeds: tuple = (0.25, 0.5, 0.75)
+    speeds: tuple = (0.25, 0.5, 0.75)  # quadruped tasks: commanded speeds
+    init: str = "narrow"  # manipulation tasks: the initial-condition grid (narrow, wide)
     num_envs: int = 8
     total_frames: int = 400_000
     init_random_frames: int = 10_000
@@ -86,11 +88,20 @@ class SACExpertConfig:
             get_target(self.target)  # an unknown name fails here, naming the valid ones
 
 
+def task_kwargs(cfg: SACExpertConfig) -> dict:
+    """The task options the config sets: speeds for locomotion, the grid for manipulation."""
+    if cfg.task in TABLETOP_TASKS:
+        return {"init": cfg.init}
+    if cfg.task.startswith("quadruped"):
+        return {"speeds": tuple(cfg.speeds)}
+    return {}
+
+
 def make_training_env(cfg: SACExpertConfig, seed: int, num_envs: int | None = None, target=None):
     target = cfg.target if target is None else target
     return make_env(cfg.task, num_envs=num_envs if num_envs is not None else cfg.num_envs,
                     seed=seed, max_episode_steps=cfg.episode_steps, target=target,
-                    task_kwargs={"speeds": tuple(cfg.speeds)},
+                    task_kwargs=task_kwargs(cfg),
                     dynamics_randomisation=DynamicsRandomisation()
                     if cfg.dynamics_randomisation and target is None else None)
 
@@ -226,12 +237,25 @@ class Expert:
 
 
 def evaluate(actor, cfg: SACExpertConfig, episodes: int, seed: int, target=None) -> dict:
-    """Deterministic rollouts: mean return and forward progress (m)."""
+    """Deterministic rollouts: mean return, and the task's readings at the last step
+    (``forward_progress`` in metres for locomotion, the ``success`` rate for manipulation)."""
     env = make_training_env(cfg, seed, num_envs=episodes, target=target)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         td = env.rollout(cfg.episode_steps, actor, break_when_any_done=False)
-    return {"return": td["next", "reward"].sum(-2).mean().item(),
-            "forward_progress": td["next", "forward_progress"][:, -1].mean().item()}
+    out = {"return": td["next", "reward"].sum(-2).mean().item()}
+    for name in env.sims[0].readings:
+        out[name] = td["next", name][:, -1].mean().item()
+    return out
+
+
+def describe_metrics(metrics: dict) -> dict:
+    """A progress bar's postfix: the return and the task's reading."""
+    shown = {"ret": f"{metrics['return']:.0f}"}
+    if "forward_progress" in metrics:
+        shown["progress"] = f"{metrics['forward_progress']:.2f}m"
+    if "success" in metrics:
+        shown["success"] = f"{metrics['success']:.0%}"
+    return shown
 
 
 def train_sac_expert(cfg: SACExpertConfig, out_dir: str | Path, progress: bool = True) -> Path:
@@ -304,7 +328,7 @@ def train_sac_expert(cfg: SACExpertConfig, out_dir: str | Path, progress: bool =
                 metrics = evaluate(loss.actor_network, cfg, cfg.eval_episodes, seed=10_000)
             metrics.update(frames=state["frames"], seconds=time.perf_counter() - start)
             state["curve"].append(metrics)
-            bar.set_postfix(ret=f"{metrics['return']:.0f}", progress=f"{metrics['forward_progress']:.2f}m")
+            bar.set_postfix(**describe_metrics(metrics))
             due = (len(state["snapshots"]) + 1) * cfg.snapshot_every
             if due <= state["frames"] < cfg.total_frames:
                 state["snapshots"][f"frames_{state['frames']}"] = _actor_state(loss)
