@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simdist.pipelines.report import format_paired_differences, format_table
+from simdist.pipelines.report import REFERENCES, format_paired_differences, format_table
 from simdist.pipelines.statistics import summarise_groups
 from simdist.pipelines.simdist import SIMDIST
 
@@ -49,7 +49,7 @@ def paired_curves(first: dict, second: dict, method: str, names: tuple[str, str]
     for curves in (first, second):
         if method not in curves:
             raise SystemExit(f"no method {method!r} in a run; it has "
-                             f"{[k for k in curves if k not in ('minutes', 'planner_in_sim')]}")
+                             f"{[k for k in curves if k != 'minutes' and k not in REFERENCES]}")
     if first["minutes"] != second["minutes"]:
         raise SystemExit(f"the runs' budgets differ: {first['minutes']} vs {second['minutes']}")
     return {"minutes": first["minutes"], names[0]: first[method], names[1]: second[method]}

@@ -30,7 +30,7 @@ import torch
 
 from simdist.envs.quadruped import CONTROL_TIMESTEP
 from simdist.pipelines.locomotion import TIPPED, UPSIDE_DOWN
-from simdist.pipelines.report import format_by_command
+from simdist.pipelines.report import REFERENCES, format_by_command
 from simdist.pipelines.simdist import observation_layout  # cached per task
 from simdist.utils import load_memmap
 
@@ -61,7 +61,7 @@ def main(argv=None):
     results = json.loads(path.read_text())
     episode_s = results["config"]["episode_steps"] * CONTROL_TIMESTEP
     curves = {name: (points if name == "minutes" else
-                     with_commands(points, episode_s) if name == "planner_in_sim" else
+                     with_commands(points, episode_s) if name in REFERENCES else
                      [with_commands(p, episode_s) for p in points])
               for name, points in results["curves"].items()}
     print(format_by_command(curves, results["config"]["target"]))

@@ -10,6 +10,7 @@ import torch
 
 from simdist.utils.precision import resolve_precision
 from simdist.utils.records import copy_records
+from simdist.pipelines.report import REFERENCES
 from simdist.utils.sealed import seal
 from simdist.utils.stages import read_stage_record
 from tests.in_process import run_script
@@ -41,8 +42,8 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
     proc = _run("--preset", "tiny", "--expert", tiny_expert, "--output-dir", tmp_path,
                 "--threads", 1)
     assert proc.returncode == 0, proc.stderr
-    stages = ["expert", "expert_zero_shot", "dataset", "pretrain", "zero_shot", "round_1",
-              "round_2"]
+    stages = ["expert", "expert_zero_shot", "dataset", "pretrain", "zero_shot", "frozen_parts",
+              "round_1", "round_2"]
     for stage in stages:
         assert (tmp_path / "stages" / f"{stage}.json").exists(), stage
     results = json.loads((tmp_path / "results.json").read_text())
@@ -67,6 +68,10 @@ def test_recipe_runs_end_to_end_on_tiny_preset_and_resumes(tmp_path, tiny_expert
         assert len(curves[method]) == 3 and all(len(r["progress_m"]) == 2 for r in curves[method])
     # Round 0 of the finetuning methods is the pretrained planner's zero-shot figure.
     assert curves["SimDist: finetune dynamics"][0] == results["planner_zero_shot"]["slippery_slope"]
+    # the frozen parts' own figure in the target, printed beside every budget
+    assert curves["prior_alone"] == results["frozen_parts"]["prior_alone"]
+    assert len(curves["prior_alone"]["fraction"]) == 2 and "simulator_ceiling" not in curves
+    assert "(policy prior alone)" in proc.stdout
     assert (tmp_path / "forward_progress.png").stat().st_size > 0
     assert "95% CI" in proc.stdout and "SimDist: finetune dynamics" in proc.stdout
     # every point keeps its episodes' commanded speeds, and the table by speed is printed
@@ -188,7 +193,7 @@ def test_a_killed_round_resumes_without_recollecting(tmp_path, tiny_expert, caps
     assert "rerun recordings" not in again.stdout
     recorded = run_script(RECIPE[1], *args[:-3], "--output-dir", tmp_path, capsys=capsys)
     assert recorded.returncode == 0, recorded.stderr
-    assert recorded.stdout.count("already done") == 7  # every stage but probe, recordings
+    assert recorded.stdout.count("already done") == 8  # every stage but probe, recordings
     assert (tmp_path / "stages" / "probe.json").exists()
     assert (tmp_path / "rerun_after.rrd").stat().st_size > 0
     assert (tmp_path / "planner_after_finetuning.mp4").stat().st_size > 0
@@ -685,7 +690,7 @@ def test_several_seeds_run_into_their_own_folders_and_aggregate(tmp_path, tiny_e
     merged = json.loads((tmp_path / "results.json").read_text())
     assert merged["seeds"] == [0, 1] and (tmp_path / "forward_progress.png").exists()
     for name, points in merged["curves"].items():
-        if name in ("minutes", "planner_in_sim"):
+        if name == "minutes" or name in REFERENCES:
             continue
         for i, point in enumerate(points):
             fractions = [r["curves"][name][i]["fraction"] for r in per_seed]
@@ -749,7 +754,7 @@ def test_a_copied_run_folder_resumes_from_its_own_files(tmp_path, tiny_expert,
     finally:
         hidden.rename(original)
     assert proc.returncode == 0, proc.stderr
-    assert proc.stdout.count("already done") == 6  # every stage but round 2
+    assert proc.stdout.count("already done") == 7  # every stage but round 2
     a = json.loads((original / "results.json").read_text())
     b = json.loads((copy / "results.json").read_text())
     assert b["curves"] == a["curves"]
@@ -774,6 +779,30 @@ def test_a_finished_run_ships_as_a_named_agent_with_its_training_record(
     assert "consistency" in " ".join(record["loss_curve"])  # from the run's CSV logs
     assert set(record["zero_shot"]) == {"sim", "slippery_slope"}
     assert "cpu" in record["machine"]
+
+
+def test_the_frozen_parts_reference_is_the_prior_alone_and_the_simulator_ceiling(
+        uninterrupted_tiny_run):
+    """The prior-only planner acts as the prior's mean at the current latent; the ceiling
+    plans with MuJoCo in the target over the first --ceiling-episodes worlds."""
+    from tensordict import TensorDict
+    from simdist.pipelines.simdist import (frozen_parts_stage, load_finished_run,
+                                           planning_agent, prior_only)
+    cfg, pretrained = load_finished_run(uninterrupted_tiny_run, ceiling_episodes=1,
+                                        threads=1)
+    agent = planning_agent(cfg, pretrained)
+    model = agent.world_model
+    obs = torch.randn(3, model.encoder.obs_dim)
+    td = TensorDict({"observation": obs, "is_init": torch.ones(3, 1, dtype=torch.bool),
+                     "simdist": {"previous_action": torch.zeros(3, 12)}}, [3])
+    out = agent.policy(-torch.ones(12), torch.ones(12), prior_only(cfg.planner()))(td)
+    latent = model.encode(out["next", "simdist", "history"])
+    assert torch.allclose(out["action"], model.policy(latent).clamp(-1, 1), atol=1e-5)
+    frozen = frozen_parts_stage(cfg, pretrained)
+    assert len(frozen["prior_alone"]["fraction"]) == cfg.episodes
+    assert len(frozen["simulator_ceiling"]["fraction"]) == 1
+    assert frozen_parts_stage(dataclasses.replace(cfg, ceiling_episodes=0),
+                              pretrained)["simulator_ceiling"] is None
 
 
 @pytest.mark.parametrize("reset", [True, False])

@@ -1,8 +1,11 @@
 """Results table and plot for the SimDist transfer curves (forward progress vs target data).
 
 ``results`` maps ``"minutes"`` to the data budgets and each method's name to one
-:func:`~simdist.pipelines.progress_stats` dict per budget; ``"planner_in_sim"`` holds
-the pretrained planner's figure in simulation (the level finetuning should approach).
+:func:`~simdist.pipelines.progress_stats` dict per budget. The keys of
+:data:`REFERENCES` hold one figure each, the same at every budget: the pretrained
+planner in simulation (the level finetuning should approach), and in the target the
+policy prior alone and the planner with the simulator as its dynamics (the ceiling of
+finetuning the dynamics alone).
 """
 
 from __future__ import annotations
@@ -15,16 +18,24 @@ from simdist.pipelines.statistics import summarise, summarise_groups
 from simdist.utils.atomic import atomic_path
 
 
+#: Results keys holding one figure each (not one per budget), and their table rows' names.
+REFERENCES = {
+    "planner_in_sim": "(pretrained planner in sim)",
+    "prior_alone": "(policy prior alone)",
+    "simulator_ceiling": "(simulator as dynamics)",
+}
+
+
 def _methods(results: dict) -> list[str]:
-    return [k for k in results if k not in ("minutes", "planner_in_sim")]
+    return [k for k in results if k != "minutes" and k not in REFERENCES]
 
 
 def _rows(results: dict) -> list[tuple[str, float | None, dict]]:
-    """``(method, minutes, point)`` per table row; the sim reference last, without minutes."""
+    """``(method, minutes, point)`` per table row; the references last, without minutes."""
     rows = [(name, minutes, r) for name in _methods(results)
             for minutes, r in zip(results["minutes"], results[name])]
-    if "planner_in_sim" in results:
-        rows.append(("(pretrained planner in sim)", None, results["planner_in_sim"]))
+    rows += [(label, None, results[key]) for key, label in REFERENCES.items()
+             if key in results]
     return rows
 
 
@@ -289,9 +300,11 @@ def plot_results(results: dict, target: str, path: str | Path) -> None:
         line, = ax.plot(minutes, mean, style, label=name)
         ax.fill_between(minutes, [100 * c[0] for c in ci], [100 * c[1] for c in ci],
                         color=line.get_color(), alpha=0.15)
-    if "planner_in_sim" in results:
-        ax.axhline(100 * results["planner_in_sim"]["mean_fraction"], color="gray", lw=1,
-                   ls=":", label="pretrained planner in sim")
+    for key, style in (("planner_in_sim", ":"), ("simulator_ceiling", "--"),
+                       ("prior_alone", "-.")):
+        if key in results:
+            ax.axhline(100 * results[key]["mean_fraction"], color="gray", lw=1, ls=style,
+                       label=REFERENCES[key].strip("()"))
     ax.axhline(100, color="k", lw=0.5)
     ax.set_xlabel(f"minutes of 50 Hz data collected in {target}")
     ax.set_ylabel("forward progress, % of commanded\n(mean, band: bootstrap 95% CI"
@@ -344,7 +357,7 @@ def aggregate_seeds(per_seed: list[dict]) -> dict:
     for name in first:
         if name == "minutes":
             continue
-        if name == "planner_in_sim":
+        if name in REFERENCES:
             out[name] = _aggregate_point([r[name] for r in per_seed])
         else:
             out[name] = [_aggregate_point([r[name][i] for r in per_seed])

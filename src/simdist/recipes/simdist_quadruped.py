@@ -12,7 +12,9 @@ killed stage resumes from its last checkpoint):
    dynamics shift (friction, softness, motors, latency, payload) is not.
 3. ``pretrain``: the SimDist world model (history encoder on robot-measurable
    observations only, latent dynamics, reward, value, policy prior) on that dataset.
-4. ``zero_shot``: latent MPPI with the pretrained model, in simulation and in the target.
+4. ``zero_shot``: latent MPPI with the pretrained model, in simulation and in the target;
+   ``frozen_parts``: the policy prior alone and (``--ceiling-episodes``) the planner with
+   the simulator as its dynamics, in the target: what the frozen parts allow.
 5. ``round_k``: collect target data with the current planner, then finetune **only the
    dynamics** (SimDist) and evaluate; the same data also finetunes the whole world model
    (ablation) and continues the expert's SAC (policy-finetuning baseline).
@@ -45,6 +47,7 @@ from simdist.pipelines.simdist.config import PRESETS, SIMDIST, Config
 from simdist.pipelines.simdist.evaluation import (collect_results, expert_zero_shot_stage,
                                                   zero_shot_job)
 from simdist.pipelines.simdist.expert_data import dataset_stage, expert_stage
+from simdist.pipelines.simdist.frozen_parts import frozen_parts_stage
 from simdist.pipelines.simdist.jobs import stage_jobs
 from simdist.pipelines.simdist.pretraining import pretrain_stage
 from simdist.pipelines.simdist.recording import probe_stage, recording_stage
@@ -117,6 +120,7 @@ def run(cfg: Config) -> dict:
                                            for domain in domains], jobs, threads=threads)))
 
     planner_zero_shot = stage("zero_shot", zero_shot)
+    frozen_parts = stage("frozen_parts", lambda d: frozen_parts_stage(cfg, pretrained))
     probe = (stage("probe", lambda d: probe_stage(cfg, dataset["path"], pretrained, d, logger))
              if cfg.record else None)
     rounds, previous = [], None
@@ -128,13 +132,14 @@ def run(cfg: Config) -> dict:
     recordings = (stage("recordings",
                         lambda d: recording_stage(cfg, pretrained, probe, rounds[-1], out))
                   if cfg.record else {})
-    results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds)
+    results = collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds, frozen_parts)
     runner.close()
     print_table(results, get_target(cfg.target).name, reference=SIMDIST)
     print("\nstage timings: " + ", ".join(f"{k} {v:.0f} s" for k, v in runner.timings.items()))
     summary = {"config": dataclasses.asdict(cfg), "expert": expert, "dataset": dataset,
                "pretrain": pretrained, "expert_zero_shot": expert_zero_shot,
-               "planner_zero_shot": planner_zero_shot, "probe": probe,
+               "planner_zero_shot": planner_zero_shot, "frozen_parts": frozen_parts,
+               "probe": probe,
                "recordings": recordings, "curves": results, "timings_s": runner.timings,
                "torch_threads": torch.get_num_threads(), "precision": precision,
                "machine": machine}
@@ -153,7 +158,8 @@ def check_weights_for_stages(cfg: Config, runner: StageRunner, pretrained: dict)
     """Refuses, by name, a folder whose pretraining is a record without its weights (e.g.
     a copy made by ``python -m simdist.utils.records``) when a stage still to run needs
     them, instead of failing inside that stage."""
-    later = ["zero_shot", *(f"round_{k + 1}" for k in range(len(cfg.budgets_min)))]
+    later = ["zero_shot", "frozen_parts",
+             *(f"round_{k + 1}" for k in range(len(cfg.budgets_min)))]
     to_run = [name for name in later + (["probe", "recordings"] if cfg.record else [])
               if not runner.done(name)]
     if not to_run or Path(pretrained["path"]).exists():

@@ -7,11 +7,14 @@ One module per concern, in pipeline order:
 - :mod:`~simdist.pipelines.simdist.models`: building, saving and loading the world models.
 - :mod:`~simdist.pipelines.simdist.pretraining`: the world model on the dataset.
 - :mod:`~simdist.pipelines.simdist.evaluation`: the expert and the planner in a domain.
+- :mod:`~simdist.pipelines.simdist.frozen_parts`: the prior alone and the planner with the
+  simulator as its dynamics: what the frozen parts allow.
 - :mod:`~simdist.pipelines.simdist.collection`: target data collected by the planner.
 - :mod:`~simdist.pipelines.simdist.rounds`: dynamics-only finetuning, the whole-model
   ablation and the continued-SAC baseline on each round's data.
 - :mod:`~simdist.pipelines.simdist.recording`: the probe and the rerun recordings.
 - :mod:`~simdist.pipelines.simdist.jobs`: how independent calls share the cores.
+- :mod:`~simdist.pipelines.simdist.shipping`: a run's pretrained model as a shipped agent.
 
 Each stage is a function of the config and the earlier stages' results (plain dicts, the
 stage records), so a Python user can run, replace or reorder them.
@@ -36,6 +39,8 @@ from simdist.pipelines.simdist.jobs import log_trained, member_jobs, stage_jobs,
 from simdist.pipelines.simdist.models import (ignored_inputs, load_agent, load_finished_run,
                                               member_paths, new_agent, planning_agent,
                                               pretrained_latent_dim, save_agent)
+from simdist.pipelines.simdist.frozen_parts import (frozen_parts_stage, prior_alone_job,
+                                                    prior_only, simulator_ceiling_job)
 from simdist.pipelines.simdist.pretraining import (heldout_prediction_skill, member_dir,
                                                    pretrain_member, pretrain_member_job,
                                                    pretrain_stage, pretraining_buffer,
@@ -61,5 +66,6 @@ __all__ = [
     "finetune_and_evaluate", "method_results", "method_job", "previous_members",
     "load_round_data", "round_data", "round_stage", "sac_round", "sac_job", "probe_stage",
     "FirstMemberProbe", "recording_stage", "recording_job", "member_jobs", "stage_jobs",
-    "updates_done", "log_trained",
+    "updates_done", "log_trained", "frozen_parts_stage", "prior_alone_job", "prior_only",
+    "simulator_ceiling_job",
 ]

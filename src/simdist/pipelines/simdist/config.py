@@ -58,6 +58,9 @@ class Config:
         "sim", "slippery_slope", "foam", "payload", "weak_motors"])
     episodes: int = 32  # evaluation episodes per point (worlds stepped at once)
     episode_steps: int = 250  # steps per episode (5 s at 50 Hz)
+    # episodes of the planner with the simulator as its dynamics in the target (the
+X
+    ceiling_episodes: int = field(default=0, metadata={ABSENT_MEANS: 0})
     seed: int = 0  # seed of every stage of a single run
     # several seeds, each into <output_dir>/seed_<N>, and one table over them
     seeds: list[int] = field(default_factory=list)
@@ -194,6 +197,7 @@ class Config:
         for name in ("mixed_precision", "planner_precision"):
             check(getattr(self, name) in PRECISIONS, name,
                   f"unknown precision {getattr(self, name)!r}; valid: {list(PRECISIONS)}")
+        check_positive(self, "ceiling_episodes", allow_zero=True)
         check_positive(self, "expert_frames", "episodes", "episode_steps", "dataset_episodes",
                        "dataset_shard_episodes", "dataset_workers", "model_horizon",
                        "heldout_episodes", "slice_len", "batch_slices", "collect_episodes",

@@ -11,6 +11,7 @@ import simdist  # noqa: F401  (headless GL set-up before dm_control)
 from simdist.agents import SimDistAgent
 from simdist.envs import get_target
 from simdist.experts import Expert
+from simdist.modules import PlannerConfig
 from simdist.pipelines import episode_stats, locomotion_env, rollout
 from simdist.pipelines.simdist.config import SIMDIST, STEPS_PER_MINUTE, Config
 from simdist.pipelines.simdist.models import planning_agent
@@ -36,14 +37,17 @@ def expert_zero_shot_stage(cfg: Config, expert_path: str) -> dict:
 
 
 def evaluate_planner(cfg: Config, agent: SimDistAgent, target: str,
-                     seed_offset: int = 10_000) -> tuple[dict, TensorDict]:
-    """Plans with ``agent``'s world model in ``target``; returns stats and the rollout."""
+                     seed_offset: int = 10_000, planner: PlannerConfig | None = None
+                     ) -> tuple[dict, TensorDict]:
+    """Plans with ``agent``'s world model in ``target`` (with ``planner``, default the
+    config's); returns stats and the rollout."""
+    planner = planner or cfg.planner()
     env = locomotion_env(get_target(target), cfg.episodes, cfg.episode_steps,
                          cfg.seed + seed_offset, task=cfg.task,
                          upright_power=cfg.reward_upright_power,
-                         primers=[agent.make_primer(cfg.planner().latency_compensation)])
+                         primers=[agent.make_primer(planner.latency_compensation)])
     spec = env.action_spec
-    policy = agent.policy(spec.space.low[0], spec.space.high[0], cfg.planner(), seed=cfg.seed)
+    policy = agent.policy(spec.space.low[0], spec.space.high[0], planner, seed=cfg.seed)
     td = rollout(env, policy, cfg.episode_steps, desc=f"evaluate planner in {target}")
     stats = episode_stats(td, env.base_env.observation_layout)
     env.close()
@@ -55,14 +59,19 @@ def zero_shot_job(cfg: Config, pretrained: dict, domain: str) -> dict:
     return evaluate_planner(cfg, planning_agent(cfg, pretrained), domain)[0]
 
 
-def collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds) -> dict:
-    """Per method: data budget (minutes) -> evaluation stats in the target."""
+def collect_results(cfg, expert_zero_shot, planner_zero_shot, rounds,
+                    frozen_parts: dict | None = None) -> dict:
+    """Per method: data budget (minutes) -> evaluation stats in the target; and the
+    references that do not change with the budget (``simdist.pipelines.report.REFERENCES``:
+    the pretrained planner in simulation, the prior alone, the simulator ceiling)."""
     minutes = [0.0] + [r["target_steps"] / STEPS_PER_MINUTE for r in rounds]
     zero = planner_zero_shot[cfg.target]
     expert = expert_zero_shot[cfg.target]
+    references = {k: v for k, v in (frozen_parts or {}).items() if v is not None}
     return {
         "minutes": minutes,
         "planner_in_sim": planner_zero_shot["sim"],
+        **references,
         "expert (zero-shot)": [expert] * len(minutes),
         SIMDIST: [zero] + [r["simdist_eval"] for r in rounds],
         "ablation: finetune whole model": [zero] + [r["whole_eval"] for r in rounds],
