@@ -59,7 +59,7 @@ class Config:
     episodes: int = 32  # evaluation episodes per point (worlds stepped at once)
     episode_steps: int = 250  # steps per episode (5 s at 50 Hz)
     # episodes of the planner with the simulator as its dynamics in the target (the
-X
+    # frozen parts' ceiling; 0: skip it: ~0.6 s per world and step on one CPU core)
     ceiling_episodes: int = field(default=0, metadata={ABSENT_MEANS: 0})
     seed: int = 0  # seed of every stage of a single run
     # several seeds, each into <output_dir>/seed_<N>, and one table over them
