@@ -1191,3 +1191,20 @@ def test_a_runs_config_json_given_back_repeats_it(tmp_path, capsys):
                      capsys=capsys)
     assert proc.returncode == 2 and "config: no file at" in proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_a_runs_teacher_and_student_ship_as_named_agents_with_their_record(
+        tmp_path, teacher_chain_run):
+    """``python -m simdist.pipelines.twist.shipping RUN --task T --seed S``."""
+    from simdist.agents import DreamerAgent, TwistStudent
+    from simdist.pipelines.twist.shipping import main as ship_main
+    ship_main([str(teacher_chain_run), "--task", "cartpole-balance", "--seed", "0",
+               "--dest", str(tmp_path)])
+    assert isinstance(load_agent(tmp_path / "teacher.pt"), DreamerAgent)
+    assert isinstance(load_agent(tmp_path / "student.pt"), TwistStudent)
+    record = json.loads((tmp_path / "training_record.json").read_text())
+    assert record["task"] == "cartpole-balance" and record["teacher"]["updates"] > 0
+    assert record["student"]["student"] == "cnn"  # the faithful student, not the readout
+    assert len(record["student"]["held_out"]["returns"]) == len(
+        record["oracle_held_out"]["returns"])
+    assert set(record["references_held_out"]) == {"zero", "uniform"}
