@@ -53,7 +53,7 @@ from simdist.modules import WorldModelEnsemble
 from simdist.pipelines import simdist as recipe
 from simdist.pipelines import episode_stats, locomotion_env, rollout
 from simdist.pipelines.statistics import summarise, summarise_groups
-from simdist.utils.stages import read_stage_record
+from simdist.utils.stages import read_stage_file
 
 def parse_variant(text: str) -> tuple[str, dict]:
     name, _, fields = text.partition(":")
@@ -138,7 +138,7 @@ def recipe_evaluation(record: str | Path, domain: str) -> dict:
     """The recipe's SimDist evaluation (per-episode ``fraction`` and ``command_mps``) kept
     in a stage record: a round's (``round_k.json``, its target) or the zero-shot stage's
     (``zero_shot.json``, one evaluation per domain, read for ``domain``)."""
-    result = read_stage_record(Path(record).parents[1], Path(record).stem)["result"]
+    result = read_stage_file(record)["result"]
     if "simdist_eval" in result:
         return result["simdist_eval"]
     if domain in result and "fraction" in result[domain]:

@@ -155,9 +155,13 @@ def test_a_stage_record_naming_the_shipped_expert_relatively_runs_from_any_direc
     """results/ records name the committed expert as checkpoints/quadruped_expert/expert.pt
     (relative to the repository root); a run folder rebuilt from them must not depend on
     the working directory."""
+    from simdist.pipelines.simdist import PRESETS, Config
     out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
     (out / "stages").mkdir(parents=True)
     elsewhere.mkdir()
+    # the records of results/ come with their config.json (a folder without it is refused)
+    config = Config(**{**PRESETS["tiny"], "record": False, "budgets_min": [0.02]})
+    (out / "config.json").write_text(json.dumps(dataclasses.asdict(config), default=str))
     (out / "stages" / "expert.json").write_text(json.dumps(
         {"result": {"path": "checkpoints/quadruped_expert/expert.pt"}, "seconds": 0.0}))
     monkeypatch.chdir(elsewhere)

@@ -182,16 +182,24 @@ def read_stage_record(out: str | Path, name: str) -> dict:
         CorruptFileError: not JSON, or not a stage record.
         EditedRecordError: its contents do not match its digest.
     """
-    out = Path(out)
-    path = out / "stages" / f"{name}.json"
+    return read_stage_file(Path(out) / "stages" / f"{name}.json")
+
+
+def read_stage_file(path: str | Path) -> dict:
+    """:func:`read_stage_record` of a record file given by its path (its run folder is the
+    folder above ``stages/``; a record kept elsewhere, its own folder). A record without
+    ``"seconds"`` (written by hand for a tool) reads as 0 seconds."""
+    path = Path(path)
+    out = path.parents[1] if path.parent.name == "stages" else path.parent
+    name = path.stem
     stored = check_seal(read_json(path, f"record of stage {name!r}"), path, how=(
         f"Restore the original, or delete it (and the stages after {name!r}) so the run "
         "recomputes them."))
-    if not (isinstance(stored, dict) and {"result", "seconds"} <= set(stored)):
+    if not (isinstance(stored, dict) and "result" in stored):
         raise CorruptFileError(f"record of stage {name!r} {str(path)!r} is incompatible (no "
-                               f"'result' and 'seconds'). To recover, {recovery_hint(path)}")
+                               f"'result'). To recover, {recovery_hint(path)}")
     return {"result": anchored_paths(stored["result"], out, stored.get(RELATIVE_KEY, [])),
-            "seconds": stored["seconds"]}
+            "seconds": stored.get("seconds", 0.0)}
 
 
 # -- one run per folder ---------------------------------------------------------------------
