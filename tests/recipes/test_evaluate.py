@@ -115,6 +115,10 @@ def test_shipped_agents_are_listed_and_evaluated_by_name(tmp_path, capsys):
                        "--output", str(tmp_path / "r.json")])
     assert out["agent"] == "Expert" and out["target"] == "foam"
     assert json.loads((tmp_path / "r.json").read_text())["returns"] == out["returns"]
+    # the shipped world model plans by name, from its own file's planner settings
+    planned = recipe.main(["--checkpoint", "simdist/quadruped", "--target", "foam",
+                           "--episodes", "1", "--steps", "2"])
+    assert planned["agent"] == "SimDistAgent" and planned["task"] == "quadruped-flat"
     for name, entry in PRETRAINED.items():  # every shipped file is in the package
         assert pretrained_path(name).is_file(), name
         assert (pretrained_path(name).parents[1] / entry.record).is_file(), name
