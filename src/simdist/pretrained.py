@@ -11,14 +11,14 @@ and from the shell: ``simdist-evaluate --checkpoint simdist/quadruped --target f
 --video foam.mp4``; ``simdist-evaluate --list`` prints this table.
 
 Examples:
-    >>> sorted(PRETRAINED)[:2]
-    ['expert/quadruped', 'expert/quadruped-flat']
+    >>> sorted(PRETRAINED)[:3]
+    ['expert/quadruped', 'expert/quadruped-flat', 'simdist/quadruped']
     >>> pretrained_path("expert/quadruped").name
     'expert.pt'
     >>> pretrained_path("simdist/humanoid")
     Traceback (most recent call last):
     ...
-    KeyError: "no pretrained agent named 'simdist/humanoid'; shipped: ['expert/quadruped', 'expert/quadruped-flat', 'simdist/quadruped']"
+    KeyError: "no pretrained agent named 'simdist/humanoid'; shipped: ['expert/quadruped', 'expert/quadruped-flat', 'simdist/quadruped', 'twist/cartpole-balance', 'twist/cartpole-balance-teacher']"
 """
 
 from __future__ import annotations
@@ -55,6 +55,15 @@ PRETRAINED: dict[str, Pretrained] = {
         "SimDist world model of the recipe's default run, pretrained on the perturbed-expert "
         "dataset; plans with latent MPPI (no target data seen)",
         "simdist_quadruped/training_record.json"),
+    "twist/cartpole-balance-teacher": Pretrained(
+        "twist_cartpole-balance/teacher.pt", "DreamerAgent", "cartpole-balance",
+        "TWIST's state teacher (the Oracle): a state Dreamer, 6,000 updates; 964 on held-out "
+        "scenes (10 episodes)", "twist_cartpole-balance/training_record.json"),
+    "twist/cartpole-balance": Pretrained(
+        "twist_cartpole-balance/student.pt", "TwistStudent", "cartpole-balance",
+        "TWIST's faithful image student (CNN by Eq. 3 + 4 alone, 300 updates): 232 on held-out "
+        "scenes, 24% of its teacher and below zero (750) and random (319) actions",
+        "twist_cartpole-balance/training_record.json"),
     "expert/quadruped": Pretrained(
         "quadruped_expert/expert.pt", "Expert", "quadruped-terrain",
         "state SAC expert on mixed slopes under dynamics randomisation (the recipes' "
