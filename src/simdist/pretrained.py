@@ -57,12 +57,12 @@ PRETRAINED: dict[str, Pretrained] = {
         "simdist_quadruped/training_record.json"),
     "twist/cartpole-balance-teacher": Pretrained(
         "twist_cartpole-balance/teacher.pt", "DreamerAgent", "cartpole-balance",
-        "TWIST's state teacher (the Oracle): a state Dreamer, 6,000 updates; 964 on held-out "
-        "scenes (10 episodes)", "twist_cartpole-balance/training_record.json"),
+        "TWIST's state teacher (the Oracle): a state Dreamer on privileged state",
+        "twist_cartpole-balance/training_record.json"),
     "twist/cartpole-balance": Pretrained(
         "twist_cartpole-balance/student.pt", "TwistStudent", "cartpole-balance",
-        "TWIST's faithful image student (CNN by Eq. 3 + 4 alone, 300 updates): 232 on held-out "
-        "scenes, 24% of its teacher and below zero (750) and random (319) actions",
+        "TWIST's faithful image student (a CNN by Eq. 3 + 4 alone); weak: below zero and "
+        "random actions on held-out scenes (docs/results.md)",
         "twist_cartpole-balance/training_record.json"),
     "expert/quadruped": Pretrained(
         "quadruped_expert/expert.pt", "Expert", "quadruped-terrain",
